@@ -1,0 +1,22 @@
+//! The model blob: framing, header and payload sections.
+//!
+//! ```text
+//! offset 0   magic "PGMB"
+//!        4   format version, u16 LE
+//!        6   header length H, u16 LE
+//!        8   CRC-32 of bytes 0..8 followed by the H header bytes, u32 LE
+//!       12   header, postcard, H bytes
+//! 12 + H     zero padding up to the next multiple of 16
+//!        P   payload (length and CRC-32 in the header), sections 4-aligned
+//! ```
+
+mod framing;
+mod header;
+pub(crate) mod records;
+
+pub use framing::{blob_len_from_prefix, crc32, Framed, FORMAT_VERSION, MAGIC, PAYLOAD_ALIGN, PREAMBLE_LEN};
+pub use header::{
+    AccWidth, Activation, Gating, Header, LayerDesc, LayerOp, ModelKind, Section, WeightFormat,
+    MAX_LAYERS,
+};
+pub use records::{Requant, REQUANT_RECORD_LEN, STAGE_RECORD_LEN};

@@ -1,0 +1,81 @@
+//! Fixed-size little-endian records inside payload sections.
+
+/// Bytes of one requantisation record.
+pub const REQUANT_RECORD_LEN: usize = 8;
+/// Bytes of one input- or output-stage record (two f32).
+pub const STAGE_RECORD_LEN: usize = 8;
+
+/// How one output row turns its blended accumulator into an i16:
+/// `y = sat16(round(sat32(round(acc >> pre)) * multiplier >> post))`,
+/// both roundings half up.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Requant {
+    /// Signed multiplier.
+    pub multiplier: i32,
+    /// Right shift applied before the multiplication (keeps it in 64 bits).
+    pub pre_shift: u8,
+    /// Right shift applied after it.
+    pub post_shift: u8,
+}
+
+impl Requant {
+    /// Largest shift the loader accepts.
+    pub const MAX_SHIFT: u8 = 62;
+
+    /// Encodes the record (the exporter's side).
+    pub fn to_bytes(&self) -> [u8; REQUANT_RECORD_LEN] {
+        let m = self.multiplier.to_le_bytes();
+        [m[0], m[1], m[2], m[3], self.pre_shift, self.post_shift, 0, 0]
+    }
+
+    /// Decodes a record; `None` if its reserved bytes are not zero.
+    pub fn from_bytes(b: &[u8; REQUANT_RECORD_LEN]) -> Option<Requant> {
+        let [m0, m1, m2, m3, pre_shift, post_shift, r0, r1] = *b;
+        (r0 == 0 && r1 == 0).then_some(Requant {
+            multiplier: i32::from_le_bytes([m0, m1, m2, m3]),
+            pre_shift,
+            post_shift,
+        })
+    }
+}
+
+/// Splits a stage record into its two f32 fields.
+pub(crate) fn stage_record(b: &[u8; STAGE_RECORD_LEN]) -> (f32, f32) {
+    let [a0, a1, a2, a3, b0, b1, b2, b3] = *b;
+    (f32::from_le_bytes([a0, a1, a2, a3]), f32::from_le_bytes([b0, b1, b2, b3]))
+}
+
+/// Reads the `i`-th bias of a section of `width`-byte little-endian integers.
+pub(crate) fn bias_at(section: &[u8], width: usize, i: usize) -> Option<i64> {
+    let start = i.checked_mul(width)?;
+    let b = section.get(start..start.checked_add(width)?)?;
+    match *b {
+        [a, b, c, d] => Some(i64::from(i32::from_le_bytes([a, b, c, d]))),
+        [a, b, c, d, e, f, g, h] => Some(i64::from_le_bytes([a, b, c, d, e, f, g, h])),
+        _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn requant_round_trips_and_rejects_reserved_bits() {
+        let r = Requant { multiplier: -123_456_789, pre_shift: 7, post_shift: 40 };
+        let mut b = r.to_bytes();
+        assert_eq!(Requant::from_bytes(&b), Some(r));
+        b[7] = 1;
+        assert_eq!(Requant::from_bytes(&b), None);
+    }
+
+    #[test]
+    fn bias_widths() {
+        let s = [0xFF, 0xFF, 0xFF, 0xFF, 2, 0, 0, 0];
+        assert_eq!(bias_at(&s, 4, 0), Some(-1));
+        assert_eq!(bias_at(&s, 4, 1), Some(2));
+        assert_eq!(bias_at(&s, 4, 2), None);
+        assert_eq!(bias_at(&s, 8, 0), Some(0x0000_0002_FFFF_FFFF));
+    }
+}

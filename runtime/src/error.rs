@@ -1,0 +1,156 @@
+//! The one error type of the runtime.
+
+use core::fmt;
+
+/// Everything that can go wrong when loading a blob or running a frame.
+///
+/// Loading validates the whole blob, so after [`crate::Model::from_bytes`]
+/// succeeds, the only errors a frame can return are about its arguments.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum Error {
+    /// The blob is shorter than its preamble, header or declared payload.
+    Truncated {
+        /// Bytes the blob needs.
+        needed: u32,
+        /// Bytes there are.
+        available: u32,
+    },
+    /// The first four bytes are not `PGMB`: this is not a phasegate blob.
+    BadMagic,
+    /// The blob was written by a format version this runtime cannot read.
+    UnsupportedVersion {
+        /// Version in the blob.
+        found: u16,
+        /// Version this runtime reads.
+        supported: u16,
+    },
+    /// Bytes follow the payload: the slice is longer than the blob it holds
+    /// (use [`crate::Model::from_region`] for a flash region).
+    TrailingBytes {
+        /// Length of the blob the header declares.
+        blob_len: u32,
+        /// Length of the slice given.
+        found: u32,
+    },
+    /// The header's CRC-32 does not match: the header bytes are damaged.
+    HeaderCorrupt,
+    /// The header passed its CRC but does not decode: written by a broken tool.
+    HeaderMalformed,
+    /// The payload's CRC-32 does not match: the weights are damaged.
+    PayloadCorrupt,
+    /// A section lies outside the payload or is not 4-byte aligned.
+    SectionOutOfBounds {
+        /// Index of the layer that owns the section (`255` for the input/output stages).
+        layer: u8,
+    },
+    /// A section's length does not match the dimensions the header declares.
+    SectionLength {
+        /// Index of the layer (`255` for the input/output stages).
+        layer: u8,
+    },
+    /// Layer dimensions do not chain (a layer's input width differs from the
+    /// previous layer's output width, or the ends differ from the model's).
+    DimensionMismatch {
+        /// Index of the first layer that does not fit.
+        layer: u8,
+    },
+    /// The number of experts of a layer does not fit the gating scheme.
+    GatingMismatch {
+        /// Index of the layer.
+        layer: u8,
+    },
+    /// A layer parameter is out of the supported range (zero width, a shift
+    /// of 63 or more, an ELU format finer than Q15, no layers, ...).
+    UnsupportedParameter {
+        /// Index of the layer (`255` for model-level parameters).
+        layer: u8,
+    },
+    /// A row's weights are too large for a 32-bit accumulator: the
+    /// no-overflow guarantee cannot be proven for this blob.
+    AccumulatorOverflow {
+        /// Index of the layer.
+        layer: u8,
+        /// Index of the row.
+        row: u16,
+    },
+    /// The header's RAM or MAC figure differs from what its layers imply.
+    HeaderInconsistent,
+    /// The activation buffers are smaller than the model needs.
+    BufferTooSmall {
+        /// Elements (i16) per buffer the model needs.
+        needed: u32,
+        /// Elements (i16) per buffer there are.
+        capacity: u32,
+    },
+    /// An input or output slice has the wrong length.
+    LengthMismatch {
+        /// Length the model needs.
+        expected: u32,
+        /// Length given.
+        found: u32,
+    },
+    /// An input value or phase is NaN or infinite.
+    NonFinite {
+        /// Index of the first offending value.
+        index: u32,
+    },
+}
+
+/// Result with the runtime's [`Error`].
+pub type Result<T> = core::result::Result<T, Error>;
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Error::Truncated { needed, available } => {
+                write!(f, "blob truncated: needs {needed} bytes, has {available}")
+            }
+            Error::BadMagic => f.write_str("not a phasegate model blob (bad magic)"),
+            Error::UnsupportedVersion { found, supported } => write!(
+                f,
+                "blob format version {found} is not supported (this runtime reads version {supported})"
+            ),
+            Error::TrailingBytes { blob_len, found } => write!(
+                f,
+                "{found} bytes given but the blob is {blob_len} bytes long"
+            ),
+            Error::HeaderCorrupt => f.write_str("blob header is corrupt (CRC-32 mismatch)"),
+            Error::HeaderMalformed => f.write_str("blob header does not decode"),
+            Error::PayloadCorrupt => f.write_str("blob payload is corrupt (CRC-32 mismatch)"),
+            Error::SectionOutOfBounds { layer } => {
+                write!(f, "section of layer {layer} lies outside the payload or is misaligned")
+            }
+            Error::SectionLength { layer } => {
+                write!(f, "section of layer {layer} has the wrong length for its dimensions")
+            }
+            Error::DimensionMismatch { layer } => {
+                write!(f, "layer {layer} dimensions do not chain with its neighbours")
+            }
+            Error::GatingMismatch { layer } => {
+                write!(f, "layer {layer} expert count does not fit the gating")
+            }
+            Error::UnsupportedParameter { layer } => {
+                write!(f, "layer {layer} has a parameter out of the supported range")
+            }
+            Error::AccumulatorOverflow { layer, row } => write!(
+                f,
+                "layer {layer} row {row} could overflow its 32-bit accumulator"
+            ),
+            Error::HeaderInconsistent => {
+                f.write_str("header RAM or MAC figures differ from its layers")
+            }
+            Error::BufferTooSmall { needed, capacity } => write!(
+                f,
+                "activation buffers too small: model needs {needed} elements, runtime has {capacity}"
+            ),
+            Error::LengthMismatch { expected, found } => {
+                write!(f, "slice length {found}, model needs {expected}")
+            }
+            Error::NonFinite { index } => write!(f, "value {index} is NaN or infinite"),
+        }
+    }
+}
+
+impl core::error::Error for Error {}

@@ -1,0 +1,79 @@
+//! ELU in fixed point: identity above zero, `exp(x) - 1` below it, read
+//! from a Q15 table sampled every 1/64 on [-16, 0] and interpolated linearly.
+//! Below -16 the result is -1 (the true value is within 1.2e-7 of it).
+
+#[path = "elu_table.rs"]
+mod table;
+use table::ELU_TABLE;
+
+/// Table samples per unit of x.
+const STEPS_PER_UNIT_LOG2: u32 = 6;
+/// Last table index.
+const LAST: usize = ELU_TABLE.len() - 1;
+
+/// ELU of `x`, a Q`frac` number, as a Q`frac` number; `frac` must be at
+/// most 15 (so that -1 fits), which the loader checks.
+#[inline]
+pub fn elu_q(x: i16, frac: u8) -> i16 {
+    if x >= 0 {
+        return x;
+    }
+    let frac = u32::from(frac.min(15));
+    // Table position of -x in Q16: (-x / 2^frac) * 64 * 2^16.
+    let pos = (u64::from(x.unsigned_abs()) << (STEPS_PER_UNIT_LOG2 + 16)) >> frac;
+    let idx = (pos >> 16) as usize;
+    let t = (pos & 0xFFFF) as i64;
+    let q15 = match (ELU_TABLE.get(idx), ELU_TABLE.get(idx + 1)) {
+        (Some(&a), Some(&b)) if idx < LAST => {
+            let (a, b) = (i64::from(a), i64::from(b));
+            a + super::round_shift((b - a) * t, 16)
+        }
+        _ => i64::from(i16::MIN),
+    };
+    super::sat_i16(super::round_shift(q15 << frac, 15))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table_matches_exp() {
+        for (i, &v) in ELU_TABLE.iter().enumerate() {
+            let exact = ((-(i as f64) / 64.0).exp() - 1.0) * 32768.0;
+            assert!((f64::from(v) - exact).abs() <= 0.5 + 1e-9, "entry {i}");
+        }
+    }
+
+    /// Error bound over every i16 input for every supported format: half an
+    /// output LSB from the final rounding, plus the table's (half a Q15 LSB
+    /// from rounding, h^2/8 = 3.1e-5 from interpolation), scaled to Q`frac`.
+    #[test]
+    fn elu_error_is_bounded_for_every_input_and_format() {
+        for frac in 0u8..=15 {
+            let lsb = f64::from(1u32 << frac);
+            let table_err = (0.5 / 32768.0 + 1.0 / (8.0 * 64.0 * 64.0) + 0.5 / 32768.0) * lsb;
+            let bound = 0.5 + table_err + 1e-9;
+            let mut worst = 0.0f64;
+            for x in i16::MIN..=i16::MAX {
+                let xr = f64::from(x) / lsb;
+                let exact = if xr > 0.0 { xr } else { xr.exp() - 1.0 } * lsb;
+                let err = (f64::from(elu_q(x, frac)) - exact).abs();
+                worst = worst.max(err);
+            }
+            assert!(worst <= bound, "frac {frac}: worst {worst} LSB > bound {bound}");
+        }
+    }
+
+    #[test]
+    fn elu_is_monotonic() {
+        for frac in [4u8, 10, 15] {
+            let mut prev = elu_q(i16::MIN, frac);
+            for x in i16::MIN + 1..=i16::MAX {
+                let y = elu_q(x, frac);
+                assert!(y >= prev, "frac {frac}, x {x}");
+                prev = y;
+            }
+        }
+    }
+}

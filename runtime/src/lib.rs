@@ -1,0 +1,28 @@
+//! phasegate: a `no_std`, heap-free, fixed-point runtime for phase-gated
+//! motion networks (PFNN, and the gated layers OMG is built from).
+//!
+//! ```text
+//! let model = Model::from_bytes(BLOB)?;            // validates everything once
+//! let mut rt: Runtime<'_, 512> = Runtime::new(model)?;
+//! rt.run(Phase::from_radians(p)?, &inputs, &mut outputs)?;
+//! ```
+//!
+//! The blob format is specified in `docs/blob-format.md`; the fixed-point
+//! scheme in `docs/fixed-point.md`.
+#![cfg_attr(not(test), no_std)]
+#![deny(missing_docs)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+
+pub mod blob;
+mod error;
+pub mod fixed;
+pub mod kernels;
+mod model;
+mod runtime;
+
+pub use blob::{blob_len_from_prefix, Header};
+pub use error::{Error, Result};
+pub use fixed::gate::Gate;
+pub use fixed::phase::Phase;
+pub use model::{macs, max_width, ram_bytes, Model, STAGE};
+pub use runtime::Runtime;

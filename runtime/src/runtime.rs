@@ -1,0 +1,140 @@
+//! `Runtime`: a model plus its two static activation buffers.
+
+use crate::error::{Error, Result};
+use crate::fixed::phase::Phase;
+use crate::fixed::sat_i16;
+use crate::model::Model;
+
+/// Runs a [`Model`] frame by frame. `W` is the capacity, in i16 elements, of
+/// each of its two ping-pong activation buffers; the model's need is checked
+/// against it when the runtime is made, so no frame can run out of room.
+///
+/// Its size is `2 * W * 2` bytes plus the model's header: put it in a
+/// `static` (or on the stack) and the whole inference needs no other RAM.
+pub struct Runtime<'a, const W: usize> {
+    model: Model<'a>,
+    a: [i16; W],
+    b: [i16; W],
+}
+
+impl<'a, const W: usize> Runtime<'a, W> {
+    /// Bytes of activation RAM this runtime holds.
+    pub const CAPACITY_BYTES: usize = 2 * W * core::mem::size_of::<i16>();
+
+    /// Wraps a validated model; refuses it when its widest layer does not fit.
+    pub fn new(model: Model<'a>) -> Result<Self> {
+        let needed = model.buffer_elements();
+        if needed > W {
+            return Err(Error::BufferTooSmall { needed: needed as u32, capacity: W as u32 });
+        }
+        Ok(Runtime { model, a: [0; W], b: [0; W] })
+    }
+
+    /// The model.
+    pub fn model(&self) -> &Model<'a> {
+        &self.model
+    }
+
+    /// Integer-only inference: `input_q` holds the quantised input (layer
+    /// 0's Q format, see [`Runtime::quantise_input`]); returns the i16
+    /// outputs of the last layer, before the output stage.
+    pub fn run_quantised(&mut self, phase: Phase, input_q: &[i16]) -> Result<&[i16]> {
+        let n = self.model.input_dim();
+        check_len(n, input_q.len())?;
+        let dst = self.a.get_mut(..n).ok_or(buffer_error(n, W))?;
+        dst.copy_from_slice(input_q);
+        self.forward(phase)
+    }
+
+    /// Float in, float out: quantises `input` (model units), runs the
+    /// network, writes de-quantised outputs (model units) to `output`.
+    pub fn run(&mut self, phase: Phase, input: &[f32], output: &mut [f32]) -> Result<()> {
+        check_len(self.model.output_dim(), output.len())?;
+        let model = self.model.clone();
+        quantise_into(&model, input, &mut self.a)?;
+        let q = self.forward(phase)?;
+        for ((o, &v), (scale, offset)) in output.iter_mut().zip(q).zip(model.output_stage()) {
+            *o = f32::from(v) * scale + offset;
+        }
+        Ok(())
+    }
+
+    /// The quantised input for `input` (model units), as `run` computes it:
+    /// `q = round((x - offset) * scale)` in IEEE f32, ties away from zero,
+    /// saturated to i16.
+    pub fn quantise_input(&self, input: &[f32], out: &mut [i16]) -> Result<()> {
+        quantise_into(&self.model, input, out)
+    }
+
+    /// De-quantises the i16 outputs of [`Runtime::run_quantised`].
+    pub fn dequantise_output(&self, q: &[i16], out: &mut [f32]) -> Result<()> {
+        check_len(self.model.output_dim(), q.len())?;
+        check_len(self.model.output_dim(), out.len())?;
+        for ((o, &v), (scale, offset)) in out.iter_mut().zip(q).zip(self.model.output_stage()) {
+            *o = f32::from(v) * scale + offset;
+        }
+        Ok(())
+    }
+
+    fn forward(&mut self, phase: Phase) -> Result<&[i16]> {
+        let gate = self.model.gate(phase);
+        let mut src = &mut self.a;
+        let mut dst = &mut self.b;
+        for i in 0..self.model.layer_count() {
+            let layer = self.model.layer(i).ok_or(Error::SectionOutOfBounds { layer: i as u8 })?;
+            let g = if layer.desc.gated { gate } else { crate::fixed::gate::Gate::SINGLE };
+            layer.run(&g, &src[..], &mut dst[..])?;
+            core::mem::swap(&mut src, &mut dst);
+        }
+        let n = self.model.output_dim();
+        src.get(..n).ok_or(buffer_error(n, W))
+    }
+}
+
+fn check_len(expected: usize, found: usize) -> Result<()> {
+    if expected == found {
+        Ok(())
+    } else {
+        Err(Error::LengthMismatch { expected: expected as u32, found: found as u32 })
+    }
+}
+
+fn buffer_error(needed: usize, capacity: usize) -> Error {
+    Error::BufferTooSmall { needed: needed as u32, capacity: capacity as u32 }
+}
+
+/// Round half away from zero in IEEE f32 arithmetic; saturates; NaN is
+/// refused earlier.
+fn round_to_i16(v: f32) -> i16 {
+    let r = if v >= 0.0 { v + 0.5 } else { v - 0.5 };
+    // `as i64` truncates toward zero and saturates, identically on every target.
+    sat_i16(r as i64)
+}
+
+fn quantise_into(model: &Model<'_>, input: &[f32], out: &mut [i16]) -> Result<()> {
+    check_len(model.input_dim(), input.len())?;
+    let capacity = out.len();
+    let out = out.get_mut(..input.len()).ok_or(buffer_error(input.len(), capacity))?;
+    for (i, ((o, &x), (offset, scale))) in out.iter_mut().zip(input).zip(model.input_stage()).enumerate() {
+        if !x.is_finite() {
+            return Err(Error::NonFinite { index: i as u32 });
+        }
+        *o = round_to_i16((x - offset) * scale);
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rounding_is_half_away_and_saturating() {
+        assert_eq!(round_to_i16(0.5), 1);
+        assert_eq!(round_to_i16(-0.5), -1);
+        assert_eq!(round_to_i16(0.49), 0);
+        assert_eq!(round_to_i16(1e9), i16::MAX);
+        assert_eq!(round_to_i16(-1e9), i16::MIN);
+        assert_eq!(round_to_i16(f32::INFINITY), i16::MAX);
+    }
+}
