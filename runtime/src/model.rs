@@ -119,22 +119,17 @@ impl<'a> Model<'a> {
             return Err(Error::UnsupportedParameter { layer: STAGE });
         }
         let mut width = h.input_dim;
-        let mut frac = h.layers.first().map_or(0, |l| l.in_frac);
         for (i, l) in h.layers.iter().enumerate() {
             let li = i as u8;
-            if l.in_dim != width || l.in_frac != frac || l.out_dim == 0 {
+            if l.in_dim != width || l.out_dim == 0 {
                 return Err(Error::DimensionMismatch { layer: li });
             }
             let want = if l.gated { gated_experts } else { 1 };
             if l.experts != want {
                 return Err(Error::GatingMismatch { layer: li });
             }
-            if l.activation == Activation::Elu && l.out_frac > 15 {
-                return Err(Error::UnsupportedParameter { layer: li });
-            }
             self.validate_sections(li, l)?;
             width = l.out_dim;
-            frac = l.out_frac;
         }
         if width != h.output_dim {
             return Err(Error::DimensionMismatch { layer: (h.layers.len() - 1) as u8 });
@@ -188,7 +183,8 @@ impl<'a> Model<'a> {
         let layer = self.layer(i).ok_or(Error::SectionOutOfBounds { layer: li })?;
         for rec in layer.requant.as_chunks::<REQUANT_RECORD_LEN>().0 {
             let r = Requant::from_bytes(rec).ok_or(Error::UnsupportedParameter { layer: li })?;
-            if r.pre_shift > Requant::MAX_SHIFT || r.post_shift > Requant::MAX_SHIFT {
+            let elu_frac_bad = layer.desc.activation == Activation::Elu && r.frac > 15;
+            if r.pre_shift > Requant::MAX_SHIFT || r.post_shift > Requant::MAX_SHIFT || elu_frac_bad {
                 return Err(Error::UnsupportedParameter { layer: li });
             }
         }
@@ -238,7 +234,7 @@ fn validate_gating(g: &Gating) -> Result<u16> {
 
 fn check_section(payload: &[u8], s: Section, layer: u8) -> Result<()> {
     match s.end() {
-        Some(end) if end as usize <= payload.len() && s.offset % 4 == 0 => Ok(()),
+        Some(end) if end as usize <= payload.len() && s.offset.is_multiple_of(4) => Ok(()),
         _ => Err(Error::SectionOutOfBounds { layer }),
     }
 }

@@ -159,11 +159,6 @@ pub struct LayerDesc {
     pub weights: WeightFormat,
     /// Accumulator and bias width.
     pub acc: AccWidth,
-    /// Fraction bits of the input activations (Q format of the i16 input).
-    pub in_frac: u8,
-    /// Fraction bits of the output activations; for the last layer this is
-    /// nominal, its rows carry their own scales in the output stage.
-    pub out_frac: u8,
     /// Non-linearity.
     pub activation: Activation,
     /// Whether the layer is gated (uses the phase gate) or has one expert.
@@ -172,7 +167,9 @@ pub struct LayerDesc {
     pub weight_section: Section,
     /// `experts x out_dim` biases in accumulator units (`acc` wide, LE).
     pub bias_section: Section,
-    /// `out_dim` requantisation records, 8 bytes each.
+    /// `out_dim` requantisation records, 8 bytes each (multiplier, shifts
+    /// and the row's activation format: scales are per row, and the next
+    /// layer's weights absorb them per column).
     pub requant_section: Section,
 }
 

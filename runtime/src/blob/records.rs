@@ -7,7 +7,8 @@ pub const STAGE_RECORD_LEN: usize = 8;
 
 /// How one output row turns its blended accumulator into an i16:
 /// `y = sat16(round(sat32(round(acc >> pre)) * multiplier >> post))`,
-/// both roundings half up.
+/// both roundings half up; then the activation, which reads the row's
+/// value as a Q`frac` number.
 #[derive(Clone, Copy, Debug, Eq, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Requant {
@@ -17,6 +18,8 @@ pub struct Requant {
     pub pre_shift: u8,
     /// Right shift applied after it.
     pub post_shift: u8,
+    /// Fraction bits of the row's output (its Q format), used by ELU.
+    pub frac: u8,
 }
 
 impl Requant {
@@ -26,16 +29,17 @@ impl Requant {
     /// Encodes the record (the exporter's side).
     pub fn to_bytes(&self) -> [u8; REQUANT_RECORD_LEN] {
         let m = self.multiplier.to_le_bytes();
-        [m[0], m[1], m[2], m[3], self.pre_shift, self.post_shift, 0, 0]
+        [m[0], m[1], m[2], m[3], self.pre_shift, self.post_shift, self.frac, 0]
     }
 
-    /// Decodes a record; `None` if its reserved bytes are not zero.
+    /// Decodes a record; `None` if its reserved byte is not zero.
     pub fn from_bytes(b: &[u8; REQUANT_RECORD_LEN]) -> Option<Requant> {
-        let [m0, m1, m2, m3, pre_shift, post_shift, r0, r1] = *b;
-        (r0 == 0 && r1 == 0).then_some(Requant {
+        let [m0, m1, m2, m3, pre_shift, post_shift, frac, reserved] = *b;
+        (reserved == 0).then_some(Requant {
             multiplier: i32::from_le_bytes([m0, m1, m2, m3]),
             pre_shift,
             post_shift,
+            frac,
         })
     }
 }
@@ -63,7 +67,7 @@ mod tests {
 
     #[test]
     fn requant_round_trips_and_rejects_reserved_bits() {
-        let r = Requant { multiplier: -123_456_789, pre_shift: 7, post_shift: 40 };
+        let r = Requant { multiplier: -123_456_789, pre_shift: 7, post_shift: 40, frac: 9 };
         let mut b = r.to_bytes();
         assert_eq!(Requant::from_bytes(&b), Some(r));
         b[7] = 1;

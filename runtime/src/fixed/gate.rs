@@ -116,7 +116,7 @@ mod tests {
     fn catmull_rom_matches_exact_within_two_lsb() {
         let g = Gating::CatmullRom { points: 4 };
         for i in 0..20_000u64 {
-            let bits = (i * 214_748_364_7 / 10_000) as u32 ^ (i as u32).wrapping_mul(2_654_435_761);
+            let bits = (i * 2_147_483_647 / 10_000) as u32 ^ (i as u32).wrapping_mul(2_654_435_761);
             let gate = Gate::new(&g, Phase::from_bits(bits));
             let s = f64::from(bits) / 4_294_967_296.0 * 4.0;
             let k1 = s.floor() as u16 % 4;

@@ -164,34 +164,32 @@ impl<'a> DenseLayer<'a> {
         let n = gate.len();
         let bias_width = self.desc.acc.bytes();
         let records = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
-        let frac = self.desc.out_frac;
         for (i, (yi, rec)) in y.iter_mut().zip(records).enumerate() {
             let [e0, e1, e2, e3] = experts;
-            let accs: [i64; MAX_ACTIVE];
-            match n {
+            let accs: [i64; MAX_ACTIVE] = match n {
                 1 => {
                     let [a] = dot1::<W, A>([self.row(e0, i)?], x);
-                    accs = [a.widen(), 0, 0, 0];
+                    [a.widen(), 0, 0, 0]
                 }
                 2 => {
                     let [a, b] = dot2::<W, A>([self.row(e0, i)?, self.row(e1, i)?], x);
-                    accs = [a.widen(), b.widen(), 0, 0];
+                    [a.widen(), b.widen(), 0, 0]
                 }
                 _ => {
                     let rows = [self.row(e0, i)?, self.row(e1, i)?, self.row(e2, i)?, self.row(e3, i)?];
-                    accs = dot4::<W, A>(rows, x).map(Acc::widen);
+                    dot4::<W, A>(rows, x).map(Acc::widen)
                 }
-            }
+            };
             let mut total = 0i64;
             for ((&e, &g), &acc) in experts.iter().zip(&coefs).zip(&accs).take(n) {
                 let b = bias_at(self.bias, bias_width, usize::from(e) * out + i).unwrap_or(0);
                 total = total.saturating_add(acc.saturating_add(b).saturating_mul(g));
             }
-            let r = Requant::from_bytes(rec).unwrap_or(Requant { multiplier: 0, pre_shift: 0, post_shift: 0 });
+            let r = Requant::from_bytes(rec).unwrap_or(Requant { multiplier: 0, pre_shift: 0, post_shift: 0, frac: 0 });
             let q = requantise(total, &r);
             *yi = match self.desc.activation {
                 Activation::Identity => q,
-                Activation::Elu => elu_q(q, frac),
+                Activation::Elu => elu_q(q, r.frac),
             };
         }
         Ok(())

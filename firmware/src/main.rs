@@ -1,0 +1,292 @@
+//! phasegate firmware for the MPS2-AN386 board (Cortex-M4F) under QEMU.
+//!
+//! Boot sequence:
+//! 1. paint the free stack, start SysTick, time a calibration loop;
+//! 2. validate the model blob flashed on its own at the MODEL region
+//!    (memory.x); a bad or missing blob is refused with the runtime's typed
+//!    error and exit code [`wire::exit::BAD_MODEL`], never a panic;
+//! 3. if the host loaded an input image at the HOSTIO region, run every
+//!    frame (phase in radians and f32 inputs -> quantise -> integer
+//!    inference -> de-quantise), timing each with SysTick, and write the
+//!    outputs and timings to `phasegate-out.bin` through semihosting;
+//! 4. write the stack high-water mark and exit through semihosting.
+//!
+//! Logs are defmt frames on semihosting stdout; `host-sim target` decodes
+//! them. The wire formats and exit codes are in `wire.rs` (shared with
+//! host-sim) and `docs/firmware.md`.
+#![no_std]
+#![no_main]
+
+mod measure;
+// Shared with host-sim, which uses the decoding half.
+#[allow(dead_code)]
+mod wire;
+
+use core::cell::UnsafeCell;
+use core::mem::MaybeUninit;
+use core::sync::atomic::{AtomicBool, Ordering};
+
+use cortex_m_rt::{entry, exception, ExceptionFrame};
+use defmt::{error, info, warn, Display2Format};
+use defmt_semihosting as _;
+use phasegate::{Model, Phase, Runtime};
+use semihosting::fs::File;
+use semihosting::io::Write as _;
+
+/// Capacity (i16 elements) of each activation buffer, and of the firmware's
+/// input/output staging buffers: the real PFNN's widest layer is 512.
+#[cfg(not(feature = "oversize-buffers"))]
+const W: usize = 512;
+/// The must-fail case: 2^20 elements is 4 MiB of activations alone, far
+/// beyond the 256 KiB RAM region, so this build does not link.
+#[cfg(feature = "oversize-buffers")]
+const W: usize = 1 << 20;
+
+/// A `static` handed out once as `&'static mut` (no heap, no `static mut`).
+/// Holds either a value written at run time or a constant initial value
+/// (which then lives in .bss/.data and is never copied through the stack).
+struct Slot<T> {
+    taken: AtomicBool,
+    value: UnsafeCell<MaybeUninit<T>>,
+}
+
+// SAFETY: `take`/`init` hand out the only reference, once (guarded by `taken`).
+unsafe impl<T> Sync for Slot<T> {}
+
+impl<T> Slot<T> {
+    /// An empty slot, filled by [`Slot::init`].
+    const fn empty() -> Self {
+        Slot { taken: AtomicBool::new(false), value: UnsafeCell::new(MaybeUninit::uninit()) }
+    }
+
+    /// A slot holding `value` from the start, handed out by [`Slot::take`].
+    const fn with(value: T) -> Self {
+        Slot { taken: AtomicBool::new(false), value: UnsafeCell::new(MaybeUninit::new(value)) }
+    }
+
+    /// Moves `value` into an empty slot and returns the only `&mut` to it;
+    /// `None` if the slot was handed out before.
+    fn init(&'static self, value: T) -> Option<&'static mut T> {
+        if self.taken.swap(true, Ordering::AcqRel) {
+            return None;
+        }
+        // SAFETY: first and only hand-out (checked above): no other reference.
+        Some(unsafe { (*self.value.get()).write(value) })
+    }
+
+    /// The only `&mut` to a slot made with [`Slot::with`]; `None` if handed
+    /// out before.
+    ///
+    /// # Safety
+    /// The slot must have been made with [`Slot::with`] (initialised).
+    unsafe fn take(&'static self) -> Option<&'static mut T> {
+        if self.taken.swap(true, Ordering::AcqRel) {
+            return None;
+        }
+        // SAFETY: initialised (caller's contract), first and only hand-out.
+        Some(unsafe { (*self.value.get()).assume_init_mut() })
+    }
+}
+
+/// Staging buffers for one frame (in .bss, not on the stack).
+struct Io {
+    inputs: [f32; W],
+    inputs_q: [i16; W],
+    outputs_q: [i16; W],
+    outputs: [f32; W],
+    record: [u8; 8 + 6 * W],
+}
+
+static RUNTIME: Slot<Runtime<'static, W>> = Slot::empty();
+static IO: Slot<Io> = Slot::with(Io {
+    inputs: [0.0; W],
+    inputs_q: [0; W],
+    outputs_q: [0; W],
+    outputs: [0.0; W],
+    record: [0; 8 + 6 * W],
+});
+
+extern "C" {
+    static _phasegate_model_start: u8;
+    static _phasegate_model_end: u8;
+    static _phasegate_hostio_start: u8;
+    static _phasegate_hostio_end: u8;
+}
+
+/// A linker-defined region as a byte slice.
+///
+/// # Safety
+/// `[start, end)` must be memory that nothing writes while the slice lives.
+unsafe fn region(start: *const u8, end: *const u8) -> &'static [u8] {
+    let (s, e) = (start as usize, end as usize);
+    // SAFETY: caller's contract; the regions are reserved in memory.x and the
+    // firmware never writes them (the QEMU loader fills them before reset).
+    unsafe { core::slice::from_raw_parts(core::ptr::with_exposed_provenance::<u8>(s), e.saturating_sub(s)) }
+}
+
+fn exit(code: i32) -> ! {
+    semihosting::process::exit(code)
+}
+
+#[entry]
+fn main() -> ! {
+    measure::paint_stack();
+    let mut cp = match cortex_m::Peripherals::take() {
+        Some(cp) => cp,
+        None => exit(wire::exit::PANIC),
+    };
+    measure::start_ticks(&mut cp.SYST);
+    info!("phasegate firmware {=str} on MPS2-AN386 (Cortex-M4F)", env!("CARGO_PKG_VERSION"));
+    let calib_ticks = measure::calibrate();
+    info!(
+        "SysTick calibration: {=u32} instructions took {=u32} ticks",
+        measure::CALIB_INSTRUCTIONS,
+        calib_ticks
+    );
+
+    // SAFETY: the MODEL and HOSTIO regions are reserved in memory.x, filled
+    // by the loader before reset and never written by the firmware.
+    let (model_region, hostio) = unsafe {
+        (
+            region(&raw const _phasegate_model_start, &raw const _phasegate_model_end),
+            region(&raw const _phasegate_hostio_start, &raw const _phasegate_hostio_end),
+        )
+    };
+    let model_addr = model_region.as_ptr() as u32;
+
+    let model = match Model::from_region(model_region) {
+        Ok(m) => m,
+        Err(e) => {
+            error!("model blob at {=u32:#010x} refused: {} ({})", model_addr, e, Display2Format(&e));
+            exit(wire::exit::BAD_MODEL);
+        }
+    };
+    info!(
+        "model blob at {=u32:#010x}: {=usize} bytes, {}",
+        model_addr,
+        model.blob_len(),
+        model.header()
+    );
+    let (input_dim, output_dim) = (model.input_dim(), model.output_dim());
+    let rt = match Runtime::<'static, W>::new(model) {
+        Ok(rt) => rt,
+        Err(e) => {
+            error!("model refused by the runtime: {} ({})", e, Display2Format(&e));
+            exit(wire::exit::BAD_MODEL);
+        }
+    };
+    info!(
+        "runtime ready: {=usize} B activation buffers, the model needs {=usize} B",
+        Runtime::<'static, W>::CAPACITY_BYTES,
+        rt.model().ram_bytes()
+    );
+    let Some(rt) = RUNTIME.init(rt) else { exit(wire::exit::PANIC) };
+
+    let (input, records) = match wire::InputHeader::parse(hostio) {
+        Ok(v) => v,
+        Err(wire::WireError::BadMagic) => {
+            info!("no input image at {=u32:#010x}: model validated, no frames to run", hostio.as_ptr() as u32);
+            finish(0, calib_ticks, None);
+        }
+        Err(e) => {
+            error!("input image at {=u32:#010x} refused: {}", hostio.as_ptr() as u32, e);
+            exit(wire::exit::BAD_INPUT);
+        }
+    };
+    if input.input_dim as usize != input_dim || input.output_dim as usize != output_dim {
+        error!(
+            "input image is for a {=u32} -> {=u32} model, the blob is {=usize} -> {=usize}",
+            input.input_dim, input.output_dim, input_dim, output_dim
+        );
+        exit(wire::exit::BAD_INPUT);
+    }
+    info!("input image: {=u32} frames", input.frames);
+
+    // SAFETY: IO is made with `Slot::with`.
+    let Some(io) = (unsafe { IO.take() }) else { exit(wire::exit::PANIC) };
+    let out_header = wire::OutputHeader { frames: input.frames, output_dim: input.output_dim, input_crc: input.crc };
+    let mut file = match File::create(c"phasegate-out.bin") {
+        Ok(f) => f,
+        Err(_) => {
+            error!("cannot create {=str} on the host (semihosting)", wire::OUTPUT_FILE);
+            exit(wire::exit::OUTPUT_ERROR);
+        }
+    };
+    if file.write_all(&out_header.encode()).is_err() {
+        error!("cannot write {=str}", wire::OUTPUT_FILE);
+        exit(wire::exit::OUTPUT_ERROR);
+    }
+
+    let (inputs, inputs_q) = (&mut io.inputs[..input_dim], &mut io.inputs_q[..input_dim]);
+    let (outputs_q, outputs) = (&mut io.outputs_q[..output_dim], &mut io.outputs[..output_dim]);
+    let record = &mut io.record[..out_header.record_len()];
+    let mut frames_done = 0u32;
+    for (i, rec) in records.chunks_exact(input.record_len()).enumerate() {
+        let t0 = measure::now();
+        let Some(radians) = wire::read_record(rec, inputs) else { exit(wire::exit::BAD_INPUT) };
+        let prepared = Phase::from_radians(radians).and_then(|phase| {
+            rt.quantise_input(inputs, inputs_q)?;
+            Ok(phase)
+        });
+        let phase = match prepared {
+            Ok(p) => p,
+            Err(e) => {
+                error!("frame {=usize}: input refused: {} ({})", i, e, Display2Format(&e));
+                exit(wire::exit::FRAME_ERROR);
+            }
+        };
+        let t1 = measure::now();
+        let result = rt.run_quantised(phase, inputs_q).map(|q| outputs_q.copy_from_slice(q));
+        let t2 = measure::now();
+        if let Err(e) = result.and_then(|()| rt.dequantise_output(outputs_q, outputs)) {
+            error!("frame {=usize}: {} ({})", i, e, Display2Format(&e));
+            exit(wire::exit::FRAME_ERROR);
+        }
+        let t3 = measure::now();
+        let head = wire::RecordHead { infer_ticks: measure::elapsed(t1, t2), frame_ticks: measure::elapsed(t0, t3) };
+        if wire::encode_record(head, outputs_q, outputs, record).is_none() || file.write_all(record).is_err() {
+            error!("frame {=usize}: cannot write {=str}", i, wire::OUTPUT_FILE);
+            exit(wire::exit::OUTPUT_ERROR);
+        }
+        frames_done += 1;
+    }
+    info!("{=u32} frames run, outputs written to {=str}", frames_done, wire::OUTPUT_FILE);
+    finish(frames_done, calib_ticks, Some(file));
+}
+
+/// Measures the stack, writes the trailer (when there is an output file) and
+/// exits with success.
+fn finish(frames_done: u32, calib_ticks: u32, file: Option<File>) -> ! {
+    let trailer = wire::Trailer {
+        frames_done,
+        stack_high_water: measure::stack_high_water(),
+        stack_size: measure::stack_size(),
+        calib_ticks,
+        calib_instructions: measure::CALIB_INSTRUCTIONS,
+    };
+    if let Some(mut file) = file {
+        if file.write_all(&trailer.encode()).is_err() {
+            error!("cannot write {=str}", wire::OUTPUT_FILE);
+            exit(wire::exit::OUTPUT_ERROR);
+        }
+        drop(file);
+    }
+    exit(wire::exit::OK)
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    error!("panic: {}", Display2Format(info));
+    exit(wire::exit::PANIC)
+}
+
+#[exception]
+unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
+    error!("hard fault at pc {=u32:#010x}", frame.pc());
+    exit(wire::exit::HARD_FAULT)
+}
+
+#[exception]
+unsafe fn DefaultHandler(irqn: i16) {
+    warn!("unexpected exception or interrupt {=i16}", irqn);
+}

@@ -1,0 +1,137 @@
+//! What the firmware measures about itself: elapsed SysTick ticks (one tick
+//! is 40 instructions under `qemu-system-arm -icount shift=0`, as the MPS2
+//! SysTick runs from the 25 MHz system clock and `shift=0` makes each
+//! instruction take 1 ns of virtual time), and the stack high-water mark by
+//! painting the free stack at boot and finding the deepest overwritten word
+//! at the end.
+
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use cortex_m::peripheral::{syst::SystClkSource, SCB, SYST};
+use cortex_m_rt::exception;
+
+/// SysTick's reload value: the full 24-bit range, so it wraps every 2^24
+/// ticks (671 million instructions) and the handler counts the wraps.
+const RELOAD: u32 = 0x00FF_FFFF;
+
+static WRAPS: AtomicU32 = AtomicU32::new(0);
+
+#[exception]
+fn SysTick() {
+    WRAPS.fetch_add(1, Ordering::Relaxed);
+}
+
+/// Starts SysTick on the processor clock, counting down from [`RELOAD`] with
+/// its wrap interrupt enabled.
+pub fn start_ticks(syst: &mut SYST) {
+    syst.set_clock_source(SystClkSource::Core);
+    syst.set_reload(RELOAD);
+    syst.clear_current();
+    syst.enable_interrupt();
+    syst.enable_counter();
+}
+
+/// Ticks since [`start_ticks`], 64-bit.
+pub fn now() -> u64 {
+    loop {
+        let before = WRAPS.load(Ordering::SeqCst);
+        let current = SYST::get_current();
+        let pending = SCB::is_pendst_pending();
+        let after = WRAPS.load(Ordering::SeqCst);
+        if before != after {
+            continue; // the handler ran in between: read again
+        }
+        // A wrap whose interrupt has not been taken yet: the counter has
+        // just reloaded (it is near the top), count that wrap now.
+        let wraps = u64::from(before) + u64::from(pending && current > RELOAD / 2);
+        return wraps * (u64::from(RELOAD) + 1) + u64::from(RELOAD - current);
+    }
+}
+
+/// Ticks between two [`now`] readings, saturated to u32 (2^32 ticks is
+/// 172 billion instructions: more than any frame).
+pub fn elapsed(from: u64, to: u64) -> u32 {
+    u32::try_from(to.saturating_sub(from)).unwrap_or(u32::MAX)
+}
+
+/// Iterations of the calibration loop; it executes two instructions per
+/// iteration (`subs`, `bne`).
+const CALIB_ITERATIONS: u32 = 20_000;
+/// Instructions the calibration loop executes.
+pub const CALIB_INSTRUCTIONS: u32 = 2 * CALIB_ITERATIONS;
+
+/// Runs a loop of exactly [`CALIB_INSTRUCTIONS`] instructions and returns
+/// the ticks it took: 1000 (40 instructions a tick) when QEMU runs with
+/// `-icount shift=0`, which is what the host checks before trusting the
+/// per-frame figures.
+pub fn calibrate() -> u32 {
+    let t0 = now();
+    // SAFETY: a register-only countdown loop; touches no memory or stack.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "subs {n}, {n}, #1",
+            "bne 2b",
+            n = inout(reg) CALIB_ITERATIONS => _,
+            options(nomem, nostack),
+        );
+    }
+    elapsed(t0, now())
+}
+
+// Bounds of the stack, from cortex-m-rt's link.x: it starts (initial SP) at
+// `_stack_start`, the end of RAM, and may grow down to `_stack_end`, the end
+// of .bss/.uninit.
+extern "C" {
+    static _stack_start: u32;
+    static _stack_end: u32;
+}
+
+/// Word written over the free stack at boot.
+const PAINT: u32 = 0x5AFE_C0DE;
+/// Bytes left unpainted below the painter's own stack pointer.
+const MARGIN: usize = 64;
+
+fn stack_bounds() -> (usize, usize) {
+    // Only the addresses of the linker symbols are taken (no read).
+    (
+        core::ptr::addr_of!(_stack_end) as usize,
+        core::ptr::addr_of!(_stack_start) as usize,
+    )
+}
+
+/// Bytes of stack between the end of static RAM and the initial SP.
+pub fn stack_size() -> u32 {
+    let (bottom, top) = stack_bounds();
+    (top - bottom) as u32
+}
+
+/// Paints every free stack word below the caller with [`PAINT`].
+#[inline(never)]
+pub fn paint_stack() {
+    let (bottom, _) = stack_bounds();
+    let sp = cortex_m::register::msp::read() as usize;
+    let mut p = bottom;
+    while p + 4 <= sp.saturating_sub(MARGIN) {
+        // SAFETY: [bottom, sp - MARGIN) is RAM below the live stack that
+        // nothing else uses (no heap, no other task); word aligned.
+        unsafe { core::ptr::write_volatile(core::ptr::with_exposed_provenance_mut::<u32>(p), PAINT) };
+        p += 4;
+    }
+}
+
+/// Deepest stack use since [`paint_stack`], in bytes below the initial SP:
+/// the distance from the top to the lowest word no longer holding the paint.
+pub fn stack_high_water() -> u32 {
+    let (bottom, top) = stack_bounds();
+    let mut p = bottom;
+    while p < top {
+        // SAFETY: reading RAM inside the stack region, word aligned.
+        let w = unsafe { core::ptr::read_volatile(core::ptr::with_exposed_provenance::<u32>(p)) };
+        if w != PAINT {
+            break;
+        }
+        p += 4;
+    }
+    (top - p) as u32
+}

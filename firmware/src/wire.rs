@@ -1,0 +1,382 @@
+//! The host <-> firmware wire format under QEMU (shared source: the firmware
+//! compiles this file as its `wire` module and host-sim includes the same
+//! file with `#[path]`, so both ends read and write one definition).
+//!
+//! Only `core`, no `unsafe`, no allocation. All integers and floats are
+//! little-endian. Specified in `docs/firmware.md`.
+//!
+//! Host -> firmware: the **input image**, loaded raw at the start of the
+//! HOSTIO region (memory.x) with `-device loader,file=...,force-raw=on`:
+//!
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 4 | magic `PGIN` |
+//! | 4 | 2 | version (1) |
+//! | 6 | 2 | header length (32): the first record starts here |
+//! | 8 | 4 | frames N |
+//! | 12 | 4 | input dim I |
+//! | 16 | 4 | output dim O (what the host expects the model to produce) |
+//! | 20 | 4 | record length = 4 + 4 I |
+//! | 24 | 4 | CRC-32 (ISO-HDLC) of the N records |
+//! | 28 | 4 | reserved, 0 |
+//!
+//! then N records: phase (f32, radians), I inputs (f32, model units).
+//!
+//! Firmware -> host: the **output file** `phasegate-out.bin`, written through
+//! semihosting in QEMU's working directory: a 32-byte header
+//! (`PGOT`, version, header length, N, O, record length = 8 + 6 O, the
+//! input image's CRC, 8 reserved bytes), N records (u32 inference ticks,
+//! u32 whole-frame ticks, O i16 quantised outputs, O f32 de-quantised
+//! outputs), and a 32-byte trailer (`PGND`, frames done, stack high-water
+//! bytes, stack size bytes, calibration ticks, calibration instructions,
+//! 8 reserved bytes).
+
+/// Magic of the input image.
+pub const INPUT_MAGIC: [u8; 4] = *b"PGIN";
+/// Magic of the output file.
+pub const OUTPUT_MAGIC: [u8; 4] = *b"PGOT";
+/// Magic of the output file's trailer.
+pub const TRAILER_MAGIC: [u8; 4] = *b"PGND";
+/// Version of both formats.
+pub const VERSION: u16 = 1;
+/// Length of every header and of the trailer.
+pub const HEADER_LEN: usize = 32;
+/// File name of the output file, relative to QEMU's working directory.
+pub const OUTPUT_FILE: &str = "phasegate-out.bin";
+
+/// Why an input image or output file is refused.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum WireError {
+    /// The magic is wrong: nothing (or something else) was loaded there.
+    BadMagic,
+    /// A version this code does not read.
+    UnsupportedVersion(u16),
+    /// The header length, record length or dimensions are inconsistent.
+    BadHeader,
+    /// The records end past the available bytes.
+    Truncated {
+        /// Bytes needed.
+        needed: u64,
+        /// Bytes available.
+        available: u64,
+    },
+    /// The records do not match their CRC-32.
+    CrcMismatch,
+}
+
+impl core::fmt::Display for WireError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            WireError::BadMagic => f.write_str("bad magic (nothing loaded there?)"),
+            WireError::UnsupportedVersion(v) => write!(f, "unsupported version {v} (this reads {VERSION})"),
+            WireError::BadHeader => f.write_str("inconsistent header"),
+            WireError::Truncated { needed, available } => {
+                write!(f, "truncated: needs {needed} bytes, has {available}")
+            }
+            WireError::CrcMismatch => f.write_str("records do not match their CRC-32"),
+        }
+    }
+}
+
+fn u16_at(b: &[u8], at: usize) -> u16 {
+    match b.get(at..at + 2) {
+        Some(&[x, y]) => u16::from_le_bytes([x, y]),
+        _ => 0,
+    }
+}
+
+fn u32_at(b: &[u8], at: usize) -> u32 {
+    match b.get(at..at + 4) {
+        Some(&[x, y, z, w]) => u32::from_le_bytes([x, y, z, w]),
+        _ => 0,
+    }
+}
+
+fn put_u32(b: &mut [u8], at: usize, v: u32) {
+    if let Some(d) = b.get_mut(at..at + 4) {
+        d.copy_from_slice(&v.to_le_bytes());
+    }
+}
+
+fn put_u16(b: &mut [u8], at: usize, v: u16) {
+    if let Some(d) = b.get_mut(at..at + 2) {
+        d.copy_from_slice(&v.to_le_bytes());
+    }
+}
+
+fn check_preamble(b: &[u8], magic: [u8; 4]) -> Result<(), WireError> {
+    if b.len() < HEADER_LEN {
+        return Err(WireError::Truncated { needed: HEADER_LEN as u64, available: b.len() as u64 });
+    }
+    if b.get(..4) != Some(&magic[..]) {
+        return Err(WireError::BadMagic);
+    }
+    let version = u16_at(b, 4);
+    if version != VERSION {
+        return Err(WireError::UnsupportedVersion(version));
+    }
+    if usize::from(u16_at(b, 6)) != HEADER_LEN {
+        return Err(WireError::BadHeader);
+    }
+    Ok(())
+}
+
+/// CRC-32/ISO-HDLC (zlib's), bitwise: small code, no table; fast enough for
+/// a few MB under QEMU.
+pub fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &byte in bytes {
+        crc ^= u32::from(byte);
+        for _ in 0..8 {
+            let mask = (crc & 1).wrapping_neg();
+            crc = (crc >> 1) ^ (0xEDB8_8320 & mask);
+        }
+    }
+    !crc
+}
+
+/// Header of the input image.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+pub struct InputHeader {
+    /// Frames N.
+    pub frames: u32,
+    /// Inputs per frame.
+    pub input_dim: u32,
+    /// Outputs per frame the host expects.
+    pub output_dim: u32,
+    /// CRC-32 of the records.
+    pub crc: u32,
+}
+
+impl InputHeader {
+    /// Bytes of one record: the phase and the inputs.
+    pub fn record_len(&self) -> usize {
+        4 + 4 * self.input_dim as usize
+    }
+
+    /// Bytes of the whole image.
+    pub fn image_len(&self) -> u64 {
+        HEADER_LEN as u64 + self.frames as u64 * self.record_len() as u64
+    }
+
+    /// The 32 header bytes.
+    pub fn encode(&self) -> [u8; HEADER_LEN] {
+        let mut b = [0u8; HEADER_LEN];
+        b[..4].copy_from_slice(&INPUT_MAGIC);
+        put_u16(&mut b, 4, VERSION);
+        put_u16(&mut b, 6, HEADER_LEN as u16);
+        put_u32(&mut b, 8, self.frames);
+        put_u32(&mut b, 12, self.input_dim);
+        put_u32(&mut b, 16, self.output_dim);
+        put_u32(&mut b, 20, self.record_len() as u32);
+        put_u32(&mut b, 24, self.crc);
+        b
+    }
+
+    /// Parses and checks the header at the start of `region` (which may be
+    /// longer than the image); returns it and the records' bytes, CRC checked.
+    pub fn parse(region: &[u8]) -> Result<(InputHeader, &[u8]), WireError> {
+        check_preamble(region, INPUT_MAGIC)?;
+        let h = InputHeader {
+            frames: u32_at(region, 8),
+            input_dim: u32_at(region, 12),
+            output_dim: u32_at(region, 16),
+            crc: u32_at(region, 24),
+        };
+        if h.input_dim == 0 || h.input_dim > 0x0100_0000 || u32_at(region, 20) as usize != h.record_len() {
+            return Err(WireError::BadHeader);
+        }
+        let end = h.image_len();
+        if end > region.len() as u64 {
+            return Err(WireError::Truncated { needed: end, available: region.len() as u64 });
+        }
+        let records = region.get(HEADER_LEN..end as usize).ok_or(WireError::BadHeader)?;
+        if crc32(records) != h.crc {
+            return Err(WireError::CrcMismatch);
+        }
+        Ok((h, records))
+    }
+}
+
+/// Reads one input record: returns the phase in radians and writes the
+/// inputs to `inputs` (whose length must be the input dim).
+pub fn read_record(record: &[u8], inputs: &mut [f32]) -> Option<f32> {
+    if record.len() != 4 + 4 * inputs.len() {
+        return None;
+    }
+    let phase = f32::from_bits(u32_at(record, 0));
+    for (i, x) in inputs.iter_mut().enumerate() {
+        *x = f32::from_bits(u32_at(record, 4 + 4 * i));
+    }
+    Some(phase)
+}
+
+/// Header of the output file.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+pub struct OutputHeader {
+    /// Frames the firmware will write.
+    pub frames: u32,
+    /// Outputs per frame.
+    pub output_dim: u32,
+    /// The input image's CRC, echoed: binds these outputs to those inputs.
+    pub input_crc: u32,
+}
+
+impl OutputHeader {
+    /// Bytes of one record.
+    pub fn record_len(&self) -> usize {
+        8 + 6 * self.output_dim as usize
+    }
+
+    /// The 32 header bytes.
+    pub fn encode(&self) -> [u8; HEADER_LEN] {
+        let mut b = [0u8; HEADER_LEN];
+        b[..4].copy_from_slice(&OUTPUT_MAGIC);
+        put_u16(&mut b, 4, VERSION);
+        put_u16(&mut b, 6, HEADER_LEN as u16);
+        put_u32(&mut b, 8, self.frames);
+        put_u32(&mut b, 12, self.output_dim);
+        put_u32(&mut b, 16, self.record_len() as u32);
+        put_u32(&mut b, 20, self.input_crc);
+        b
+    }
+
+    /// Parses the header at the start of `file`.
+    pub fn parse(file: &[u8]) -> Result<OutputHeader, WireError> {
+        check_preamble(file, OUTPUT_MAGIC)?;
+        let h = OutputHeader {
+            frames: u32_at(file, 8),
+            output_dim: u32_at(file, 12),
+            input_crc: u32_at(file, 20),
+        };
+        if u32_at(file, 16) as usize != h.record_len() {
+            return Err(WireError::BadHeader);
+        }
+        Ok(h)
+    }
+}
+
+/// One output record.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+pub struct RecordHead {
+    /// SysTick ticks spent in `Runtime::run_quantised` (integer inference).
+    pub infer_ticks: u32,
+    /// SysTick ticks for the whole frame: phase and input conversion,
+    /// inference and de-quantisation.
+    pub frame_ticks: u32,
+}
+
+/// Encodes one output record into `buf` (length `8 + 6 * q.len()`);
+/// returns `None` on a length mismatch.
+pub fn encode_record(head: RecordHead, q: &[i16], f: &[f32], buf: &mut [u8]) -> Option<()> {
+    if q.len() != f.len() || buf.len() != 8 + 6 * q.len() {
+        return None;
+    }
+    put_u32(buf, 0, head.infer_ticks);
+    put_u32(buf, 4, head.frame_ticks);
+    let (qb, fb) = buf.get_mut(8..)?.split_at_mut(2 * q.len());
+    for (d, v) in qb.chunks_exact_mut(2).zip(q) {
+        d.copy_from_slice(&v.to_le_bytes());
+    }
+    for (d, v) in fb.chunks_exact_mut(4).zip(f) {
+        d.copy_from_slice(&v.to_bits().to_le_bytes());
+    }
+    Some(())
+}
+
+/// Decodes one output record: its head, and the outputs into `q` and `f`.
+pub fn decode_record(buf: &[u8], q: &mut [i16], f: &mut [f32]) -> Option<RecordHead> {
+    if q.len() != f.len() || buf.len() != 8 + 6 * q.len() {
+        return None;
+    }
+    let head = RecordHead { infer_ticks: u32_at(buf, 0), frame_ticks: u32_at(buf, 4) };
+    for (i, v) in q.iter_mut().enumerate() {
+        *v = u16_at(buf, 8 + 2 * i) as i16;
+    }
+    let base = 8 + 2 * q.len();
+    for (i, v) in f.iter_mut().enumerate() {
+        *v = f32::from_bits(u32_at(buf, base + 4 * i));
+    }
+    Some(head)
+}
+
+/// The output file's trailer: written last, so its presence says the run
+/// finished.
+#[derive(Clone, Copy, Debug, Default, Eq, PartialEq)]
+pub struct Trailer {
+    /// Frames written.
+    pub frames_done: u32,
+    /// Deepest stack use seen, in bytes (painted-stack high-water mark).
+    pub stack_high_water: u32,
+    /// Bytes between the end of static RAM and the initial stack pointer.
+    pub stack_size: u32,
+    /// SysTick ticks the calibration loop took.
+    pub calib_ticks: u32,
+    /// Instructions the calibration loop executes.
+    pub calib_instructions: u32,
+}
+
+impl Trailer {
+    /// The 32 trailer bytes.
+    pub fn encode(&self) -> [u8; HEADER_LEN] {
+        let mut b = [0u8; HEADER_LEN];
+        b[..4].copy_from_slice(&TRAILER_MAGIC);
+        put_u32(&mut b, 4, self.frames_done);
+        put_u32(&mut b, 8, self.stack_high_water);
+        put_u32(&mut b, 12, self.stack_size);
+        put_u32(&mut b, 16, self.calib_ticks);
+        put_u32(&mut b, 20, self.calib_instructions);
+        b
+    }
+
+    /// Parses a trailer.
+    pub fn parse(b: &[u8]) -> Result<Trailer, WireError> {
+        if b.len() != HEADER_LEN {
+            return Err(WireError::Truncated { needed: HEADER_LEN as u64, available: b.len() as u64 });
+        }
+        if b.get(..4) != Some(&TRAILER_MAGIC[..]) {
+            return Err(WireError::BadMagic);
+        }
+        Ok(Trailer {
+            frames_done: u32_at(b, 4),
+            stack_high_water: u32_at(b, 8),
+            stack_size: u32_at(b, 12),
+            calib_ticks: u32_at(b, 16),
+            calib_instructions: u32_at(b, 20),
+        })
+    }
+}
+
+/// The firmware's semihosting exit codes (QEMU exits with the same code).
+pub mod exit {
+    /// Every frame ran and the outputs were written (or, without an input
+    /// image, the model was validated).
+    pub const OK: i32 = 0;
+    /// The panic handler ran (a bug: nothing in the firmware should panic).
+    pub const PANIC: i32 = 1;
+    /// The model blob in the MODEL region was refused.
+    pub const BAD_MODEL: i32 = 2;
+    /// The input image in the HOSTIO region was refused.
+    pub const BAD_INPUT: i32 = 3;
+    /// The runtime refused a frame (NaN/inf input or phase, wrong length).
+    pub const FRAME_ERROR: i32 = 4;
+    /// Writing the output file through semihosting failed.
+    pub const OUTPUT_ERROR: i32 = 5;
+    /// A hard fault (bad memory access, ...).
+    pub const HARD_FAULT: i32 = 6;
+
+    /// One line saying what an exit code means.
+    pub fn describe(code: i32) -> &'static str {
+        match code {
+            OK => "success",
+            PANIC => "firmware panicked",
+            BAD_MODEL => "model blob refused",
+            BAD_INPUT => "input image refused",
+            FRAME_ERROR => "runtime refused a frame",
+            OUTPUT_ERROR => "could not write the output file",
+            HARD_FAULT => "hard fault",
+            _ => "unknown exit code",
+        }
+    }
+}

@@ -1,0 +1,8 @@
+//! host-sim: runs the phasegate runtime on the host, runs the float
+//! references, compares them, and drives the demos and golden vectors.
+
+pub mod accuracy;
+pub mod compare;
+pub mod default_model;
+pub mod eval;
+pub mod npy;

@@ -1,0 +1,109 @@
+//! `.npy` reading and writing for the command-line contract (float32
+//! matrices and vectors, int16 golden outputs). Writes go through a
+//! temporary file and a rename, so a failed run leaves nothing behind.
+
+use anyhow::{bail, Context, Result};
+use npyz::WriterBuilder;
+use std::path::Path;
+
+/// A row-major matrix.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Matrix<T> {
+    /// Rows.
+    pub rows: usize,
+    /// Columns.
+    pub cols: usize,
+    /// `rows * cols` values.
+    pub data: Vec<T>,
+}
+
+impl<T: Copy> Matrix<T> {
+    /// Row `i`.
+    pub fn row(&self, i: usize) -> &[T] {
+        &self.data[i * self.cols..(i + 1) * self.cols]
+    }
+
+    /// Iterator over rows.
+    pub fn iter_rows(&self) -> impl Iterator<Item = &[T]> {
+        self.data.chunks_exact(self.cols.max(1)).take(self.rows)
+    }
+}
+
+fn read_any<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let npy = npyz::NpyFile::new(&bytes[..])
+        .with_context(|| format!("{} is not a .npy file", path.display()))?;
+    if npy.order() != npyz::Order::C {
+        bail!("{}: Fortran-ordered arrays are not supported; save with C order", path.display());
+    }
+    let shape = npy.shape().to_vec();
+    let data = npy
+        .into_vec::<T>()
+        .with_context(|| format!("{}: wrong element type", path.display()))?;
+    Ok((shape, data))
+}
+
+/// Reads an `(N, cols)` float32 matrix.
+pub fn read_matrix_f32(path: &Path, cols: usize) -> Result<Matrix<f32>> {
+    let (shape, data) = read_any::<f32>(path)?;
+    match shape[..] {
+        [r, c] if c as usize == cols => Ok(Matrix { rows: r as usize, cols, data }),
+        _ => bail!("{}: shape {:?}, expected (N, {cols}) float32", path.display(), shape),
+    }
+}
+
+/// Reads an `(N, cols)` int16 matrix.
+pub fn read_matrix_i16(path: &Path) -> Result<Matrix<i16>> {
+    let (shape, data) = read_any::<i16>(path)?;
+    match shape[..] {
+        [r, c] => Ok(Matrix { rows: r as usize, cols: c as usize, data }),
+        _ => bail!("{}: shape {:?}, expected (N, M) int16", path.display(), shape),
+    }
+}
+
+/// Reads an `(N,)` float32 vector.
+pub fn read_vector_f32(path: &Path) -> Result<Vec<f32>> {
+    let (shape, data) = read_any::<f32>(path)?;
+    match shape[..] {
+        [_] => Ok(data),
+        _ => bail!("{}: shape {:?}, expected (N,) float32", path.display(), shape),
+    }
+}
+
+/// Reads an `(N, M)` float32 matrix of any width.
+pub fn read_matrix_f32_any(path: &Path) -> Result<Matrix<f32>> {
+    let (shape, data) = read_any::<f32>(path)?;
+    match shape[..] {
+        [r, c] => Ok(Matrix { rows: r as usize, cols: c as usize, data }),
+        _ => bail!("{}: shape {:?}, expected (N, M) float32", path.display(), shape),
+    }
+}
+
+fn write_npy<T: npyz::Serialize + npyz::AutoSerialize + Copy>(path: &Path, shape: &[u64], data: &[T]) -> Result<()> {
+    let mut bytes = Vec::new();
+    {
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(shape)
+            .writer(&mut bytes)
+            .begin_nd()?;
+        w.extend(data.iter().copied())?;
+        w.finish()?;
+    }
+    write_atomic(path, &bytes)
+}
+
+/// Writes a matrix as `.npy`.
+pub fn write_matrix<T: npyz::Serialize + npyz::AutoSerialize + Copy>(path: &Path, m: &Matrix<T>) -> Result<()> {
+    write_npy(path, &[m.rows as u64, m.cols as u64], &m.data)
+}
+
+/// Writes a vector as `.npy`.
+pub fn write_vector<T: npyz::Serialize + npyz::AutoSerialize + Copy>(path: &Path, v: &[T]) -> Result<()> {
+    write_npy(path, &[v.len() as u64], v)
+}
+
+/// Writes `bytes` to a temporary file beside `path`, then renames it.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    exporter::atomic::write_atomic(path, bytes)
+}

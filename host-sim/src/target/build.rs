@@ -1,0 +1,86 @@
+//! Building the firmware (`cargo build --release` in `firmware/`).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use anyhow::{bail, Context, Result};
+
+/// The repository root: `PHASEGATE_REPO`, else the parent of host-sim's
+/// manifest directory (where it was compiled).
+pub fn repo_root() -> PathBuf {
+    match std::env::var_os("PHASEGATE_REPO") {
+        Some(p) => PathBuf::from(p),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join(".."),
+    }
+}
+
+/// The firmware crate: `PHASEGATE_FIRMWARE_DIR`, else `<repo>/firmware`.
+pub fn firmware_dir() -> PathBuf {
+    match std::env::var_os("PHASEGATE_FIRMWARE_DIR") {
+        Some(p) => PathBuf::from(p),
+        None => repo_root().join("firmware"),
+    }
+}
+
+/// Target triple of the firmware.
+pub const TARGET: &str = "thumbv7em-none-eabihf";
+/// Binary name of the firmware.
+pub const BIN: &str = "phasegate-firmware";
+
+/// Outcome of one `cargo build`.
+#[derive(Debug)]
+pub struct BuildOutput {
+    /// Whether cargo succeeded.
+    pub success: bool,
+    /// cargo's stderr (diagnostics).
+    pub stderr: String,
+    /// Where the ELF is (or would be).
+    pub elf: PathBuf,
+}
+
+/// Runs `cargo build --release` in the firmware directory with `features`,
+/// into `target_dir` (default `firmware/target`). Does not fail on a build
+/// error: see [`BuildOutput::success`].
+pub fn cargo_build(features: &[&str], target_dir: Option<&Path>) -> Result<BuildOutput> {
+    let dir = firmware_dir();
+    let target_dir = target_dir.map(Path::to_path_buf).unwrap_or_else(|| dir.join("target"));
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let mut cmd = Command::new(cargo);
+    cmd.current_dir(&dir).args(["build", "--release", "--quiet", "--target", TARGET]).arg("--target-dir").arg(&target_dir);
+    if !features.is_empty() {
+        cmd.arg("--features").arg(features.join(","));
+    }
+    // The host build's settings must not leak into the target build (the
+    // firmware's .cargo/config.toml holds its own flags).
+    for var in [
+        "RUSTFLAGS",
+        "CARGO_ENCODED_RUSTFLAGS",
+        "CARGO_BUILD_RUSTFLAGS",
+        "CARGO_BUILD_TARGET",
+        "CARGO_TARGET_DIR",
+        "CARGO_BUILD_TARGET_DIR",
+        "CARGO_MANIFEST_DIR",
+        "CARGO_PRIMARY_PACKAGE",
+    ] {
+        cmd.env_remove(var);
+    }
+    let out = cmd.output().with_context(|| format!("cannot run cargo in {}", dir.display()))?;
+    Ok(BuildOutput {
+        success: out.status.success(),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+        elf: target_dir.join(TARGET).join("release").join(BIN),
+    })
+}
+
+/// Builds the firmware if needed (cargo decides) and returns its ELF path.
+pub fn build_firmware() -> Result<PathBuf> {
+    let out = cargo_build(&[], None)?;
+    if !out.success {
+        bail!(
+            "firmware build failed (cargo build --release in {}):\n{}\n(is the target installed? rustup target add {TARGET})",
+            firmware_dir().display(),
+            out.stderr.trim_end()
+        );
+    }
+    Ok(out.elf)
+}

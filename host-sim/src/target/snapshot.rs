@@ -1,0 +1,150 @@
+//! Snapshot tests of the firmware's decoded defmt log: each scenario boots
+//! the firmware under QEMU and compares its log (and exit code) with
+//! `firmware/snapshots/<scenario>.log`, next to the firmware's source.
+//!
+//! Bless new snapshots after an intended change with
+//! `PHASEGATE_OVERWRITE_SNAPSHOTS=1 cargo test -p host-sim target::tests::firmware_log_snapshots`
+//! (or [`run_snapshots`] with `overwrite = true`), then review the diff in git.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+
+use super::{boot, build_firmware, firmware_dir, frames, wire, ElfInfo};
+
+/// Where the model comes from in a scenario.
+#[derive(Clone, Copy, Debug)]
+enum Blob {
+    /// Nothing at the MODEL region.
+    None,
+    /// The embedded default model's blob.
+    Default,
+    /// The default blob with the last payload byte flipped.
+    CorruptPayload,
+}
+
+/// One snapshot scenario.
+#[derive(Clone, Copy, Debug)]
+struct Scenario {
+    name: &'static str,
+    blob: Blob,
+    /// Feed the golden vectors (else no input image).
+    golden_inputs: bool,
+}
+
+const SCENARIOS: &[Scenario] = &[
+    Scenario { name: "golden-default", blob: Blob::Default, golden_inputs: true },
+    Scenario { name: "model-only", blob: Blob::Default, golden_inputs: false },
+    Scenario { name: "no-model", blob: Blob::None, golden_inputs: false },
+    Scenario { name: "corrupt-model", blob: Blob::CorruptPayload, golden_inputs: false },
+];
+
+/// Directory of the expected logs.
+pub fn snapshot_dir() -> PathBuf {
+    firmware_dir().join("snapshots")
+}
+
+/// The text compared for a run: the exit code, then one line per log frame.
+pub fn render(exit_code: i32, log: &[String]) -> String {
+    let mut s = format!("exit: {exit_code} ({})\n", wire::exit::describe(exit_code));
+    for line in log {
+        s.push_str(line);
+        s.push('\n');
+    }
+    s
+}
+
+/// A small line diff (expected `-`, actual `+`) for the failure message.
+fn diff(expected: &str, actual: &str) -> String {
+    let (e, a): (Vec<&str>, Vec<&str>) = (expected.lines().collect(), actual.lines().collect());
+    let mut out = String::new();
+    for i in 0..e.len().max(a.len()) {
+        match (e.get(i), a.get(i)) {
+            (Some(x), Some(y)) if x == y => {}
+            (x, y) => {
+                if let Some(x) = x {
+                    out.push_str(&format!("  line {}: - {x}\n", i + 1));
+                }
+                if let Some(y) = y {
+                    out.push_str(&format!("  line {}: + {y}\n", i + 1));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Outcome of one scenario.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Outcome {
+    /// Same as the snapshot.
+    Same,
+    /// Snapshot written (overwrite mode, or it did not exist).
+    Written,
+    /// Differs; the message holds the diff.
+    Differs(String),
+}
+
+/// Runs every scenario, compares (or, with `overwrite`, rewrites) its
+/// snapshot, and reports every difference before failing.
+pub fn run_snapshots(overwrite: bool) -> Result<Vec<(&'static str, Outcome)>> {
+    let golden = frames::golden_dir();
+    let blob_path = golden.join("model.blob");
+    let blob = std::fs::read(&blob_path).with_context(|| format!("cannot read {}", blob_path.display()))?;
+    let model = phasegate::Model::from_bytes(&blob).context("the default blob")?;
+    let image = frames::golden_for(&blob, model.input_dim(), model.output_dim())?
+        .context("no golden vectors for the default blob")?
+        .image(model.output_dim());
+    let elf_path = build_firmware()?;
+    let elf = ElfInfo::read(&elf_path)?;
+    let scratch = tempfile::tempdir()?;
+    let corrupt_path = scratch.path().join("corrupt.blob");
+    let mut corrupt = blob.clone();
+    if let Some(b) = corrupt.last_mut() {
+        *b ^= 0x01;
+    }
+    std::fs::write(&corrupt_path, &corrupt)?;
+
+    let mut results = Vec::new();
+    for s in SCENARIOS {
+        let blob: Option<&Path> = match s.blob {
+            Blob::None => None,
+            Blob::Default => Some(&blob_path),
+            Blob::CorruptPayload => Some(&corrupt_path),
+        };
+        let img = s.golden_inputs.then_some(&image[..]);
+        let booted = boot(&elf, &elf_path, blob, img, Duration::from_secs(120))
+            .with_context(|| format!("scenario {}", s.name))?;
+        let actual = render(booted.run.exit_code, &booted.log);
+        let path = snapshot_dir().join(format!("{}.log", s.name));
+        let outcome = match std::fs::read_to_string(&path) {
+            Ok(expected) if expected == actual => Outcome::Same,
+            Ok(_) | Err(_) if overwrite => {
+                std::fs::write(&path, &actual).with_context(|| format!("cannot write {}", path.display()))?;
+                Outcome::Written
+            }
+            Ok(expected) => Outcome::Differs(diff(&expected, &actual)),
+            Err(_) => Outcome::Differs(format!("  no snapshot {} yet; actual:\n{actual}", path.display())),
+        };
+        results.push((s.name, outcome));
+    }
+    let failed: Vec<String> = results
+        .iter()
+        .filter_map(|(name, o)| match o {
+            Outcome::Differs(d) => Some(format!("{name}:\n{d}")),
+            _ => None,
+        })
+        .collect();
+    if !failed.is_empty() {
+        bail!(
+            "{} of {} firmware log snapshots differ (in {}):\n{}\nIf the change is intended, bless it: \
+             PHASEGATE_OVERWRITE_SNAPSHOTS=1 cargo test -p host-sim firmware_log_snapshots",
+            failed.len(),
+            results.len(),
+            snapshot_dir().display(),
+            failed.join("")
+        );
+    }
+    Ok(results)
+}
