@@ -11,3 +11,5 @@ pub mod calibrate;
 pub mod quantise;
 pub mod atomic;
 pub mod export;
+pub mod npz;
+pub mod inspect;

@@ -1,1 +1,203 @@
-fn main() {}
+//! `exporter`: trained weights in, checksummed fixed-point blob out.
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand, ValueEnum};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use phasegate::blob::WeightFormat;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Duration;
+
+use exporter::export::{export_pfnn, ExportReport};
+use exporter::float_pfnn::{FloatPfnn, GatingMode};
+use exporter::quantise::QuantOptions;
+
+#[derive(Parser)]
+#[command(name = "exporter", version, about = "Turns trained phase-gated networks into phasegate model blobs")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Gating {
+    /// Nearest lower of the tables (the demo's default mode).
+    Constant,
+    /// Linear blend of 10 tables (every 5th of 50).
+    Linear,
+    /// Exact Catmull-Rom spline of the 4 recovered control points.
+    Cubic,
+}
+
+impl From<Gating> for GatingMode {
+    fn from(g: Gating) -> Self {
+        match g {
+            Gating::Constant => GatingMode::Constant,
+            Gating::Linear => GatingMode::Linear,
+            Gating::Cubic => GatingMode::Cubic,
+        }
+    }
+}
+
+#[derive(clap::Args)]
+struct QuantArgs {
+    /// Phase gating of the blob.
+    #[arg(long, value_enum)]
+    gating: Gating,
+    /// Weight width.
+    #[arg(long, default_value_t = 8, value_parser = parse_bits)]
+    weight_bits: u8,
+    /// Where to write the blob.
+    #[arg(short = 'o', long = "output")]
+    output: PathBuf,
+    /// Also write a JSON report (sizes, SQNR per layer, residual, overflow proof).
+    #[arg(long)]
+    report: Option<PathBuf>,
+}
+
+fn parse_bits(s: &str) -> Result<u8, String> {
+    match s {
+        "8" => Ok(8),
+        "16" => Ok(16),
+        _ => Err(format!("{s} is not a supported weight width (8 or 16)")),
+    }
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Import a PFNN demo weight directory (Xmean.bin, W0_000.bin, ...).
+    Pfnn {
+        /// The directory.
+        #[arg(long)]
+        weights: PathBuf,
+        #[command(flatten)]
+        quant: QuantArgs,
+    },
+    /// Import a PFNN-shaped model from a NumPy .npz (Xmean, Xstd, Ymean, Ystd, W0..W2 (K,out,in), b0..b2 (K,out)).
+    Npz {
+        /// The .npz file.
+        #[arg(long)]
+        weights: PathBuf,
+        #[command(flatten)]
+        quant: QuantArgs,
+    },
+    /// Print a blob's header; exits non-zero if the blob is invalid.
+    Inspect {
+        /// The blob.
+        blob: PathBuf,
+    },
+}
+
+/// A progress display on stderr, hidden when stdout is not a terminal.
+fn spinner(msg: &str) -> ProgressBar {
+    let target = if std::io::stdout().is_terminal() { ProgressDrawTarget::stderr() } else { ProgressDrawTarget::hidden() };
+    let pb = ProgressBar::with_draw_target(None, target);
+    pb.set_style(ProgressStyle::with_template("{spinner} {msg} [{elapsed}]").unwrap_or_else(|_| ProgressStyle::default_spinner()));
+    pb.set_message(msg.to_string());
+    pb.enable_steady_tick(Duration::from_millis(120));
+    pb
+}
+
+fn load_pfnn_dir(dir: &Path, mode: GatingMode) -> Result<(FloatPfnn, Option<exporter::control_points::Residual>)> {
+    let target = if std::io::stdout().is_terminal() { ProgressDrawTarget::stderr() } else { ProgressDrawTarget::hidden() };
+    let bar = ProgressBar::with_draw_target(Some(0), target);
+    bar.set_style(
+        ProgressStyle::with_template("reading {msg} {bar:30} {pos}/{len} files [{elapsed}]")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.set_message(dir.display().to_string());
+    let tables = exporter::pfnn_dir::load_pfnn_dir_with_progress(dir, &mut |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    })?;
+    bar.finish_and_clear();
+    let pb = spinner(match mode {
+        GatingMode::Cubic => "recovering control points",
+        _ => "selecting tables",
+    });
+    let out = FloatPfnn::from_tables(&tables, mode);
+    pb.finish_and_clear();
+    Ok(out)
+}
+
+fn export(net: &FloatPfnn, residual: Option<exporter::control_points::Residual>, q: &QuantArgs) -> Result<()> {
+    let weights = if q.weight_bits == 16 { WeightFormat::I16 } else { WeightFormat::I8 };
+    let opts = QuantOptions { weights, ..QuantOptions::default() };
+    let pb = spinner("calibrating and quantising");
+    let (blob, report) = export_pfnn(net, residual, &opts)?;
+    pb.finish_and_clear();
+    write_outputs(&blob, &report, q)?;
+    if std::io::stdout().is_terminal() || std::env::var_os("PHASEGATE_VERBOSE").is_some() {
+        summary(&report, &q.output);
+    } else {
+        println!("{}: {} bytes", q.output.display(), report.blob_bytes);
+    }
+    Ok(())
+}
+
+/// Both files or neither: the report goes first, and is removed again if
+/// the blob cannot be written.
+fn write_outputs(blob: &[u8], report: &ExportReport, q: &QuantArgs) -> Result<()> {
+    if let Some(path) = &q.report {
+        let json = serde_json::to_vec_pretty(report)?;
+        exporter::atomic::write_atomic(path, &json)?;
+    }
+    if let Err(e) = exporter::atomic::write_atomic(&q.output, blob) {
+        if let Some(path) = &q.report {
+            let _ = std::fs::remove_file(path);
+        }
+        return Err(e);
+    }
+    Ok(())
+}
+
+fn summary(r: &ExportReport, out: &Path) {
+    println!("wrote {} ({} bytes, {} weights, {} gating)", out.display(), r.blob_bytes, r.weight_format, r.gating);
+    if let Some(res) = &r.control_point_residual {
+        println!("control-point residual: max {:.3e}, relative {:.3e}", res.max_abs, res.rel_frobenius);
+    }
+    println!("RAM {} bytes, {} MACs per frame", r.ram_bytes, r.macs_per_frame);
+    for l in &r.layers {
+        println!(
+            "layer {}: {}x{} x{} experts, acc {}, weight SQNR {:.1} dB, worst blended accumulator 2^{:.1}",
+            l.index, l.out_dim, l.in_dim, l.experts, l.accumulator, l.weight_sqnr_db, l.max_blend_bits
+        );
+    }
+    println!("overflow proof: {}", if r.overflow_proof { "holds for every i16 input" } else { "FAILED" });
+}
+
+fn inspect(path: &Path) -> Result<()> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    match phasegate::Model::from_bytes(&bytes) {
+        Ok(model) => {
+            print!("{}", exporter::inspect::describe(&model));
+            Ok(())
+        }
+        Err(e) => bail!("{}: {e}", path.display()),
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Pfnn { weights, quant } => {
+            let (net, residual) = load_pfnn_dir(&weights, quant.gating.into())?;
+            export(&net, residual, &quant)
+        }
+        Command::Npz { weights, quant } => {
+            let net = exporter::npz::float_pfnn_from_npz(&weights, quant.gating.into())?;
+            export(&net, None, &quant)
+        }
+        Command::Inspect { blob } => inspect(&blob),
+    }
+}
+
+fn main() -> ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {}", format!("{e:#}").replace('\n', " "));
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -4,5 +4,7 @@
 pub mod accuracy;
 pub mod compare;
 pub mod default_model;
+pub mod demo;
 pub mod eval;
+pub mod golden;
 pub mod npy;

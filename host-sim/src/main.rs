@@ -1,11 +1,212 @@
-use anyhow::Result;
-use std::path::PathBuf;
-fn main() -> Result<()> {
-    let dir = PathBuf::from(std::env::args().nth(1).unwrap());
-    let t = exporter::pfnn_dir::load_pfnn_dir(&dir)?;
-    let a = host_sim::accuracy::measure(&t, 64, 7)?;
-    println!("{}", a.table());
-    println!("{}", serde_json::to_string_pretty(&a.int8_report.layers)?);
-    for r in &a.rows { println!("spread {}\n{}", r.spread, r.int8.table()); }
-    Ok(())
+//! `host-sim`: the runtime on the host, float references, comparisons,
+//! demos and golden vectors.
+
+use anyhow::{anyhow, bail, Result};
+use clap::{Parser, Subcommand, ValueEnum};
+use exporter::float_pfnn::{FloatPfnn, GatingMode};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use host_sim::{accuracy, compare, default_model, demo, eval, golden, npy};
+
+#[derive(Parser)]
+#[command(name = "host-sim", version, about = "Runs phasegate models on the host and checks them")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Gating {
+    /// Nearest lower table (the demo's default).
+    Constant,
+    /// Linear blend of 10 tables.
+    Linear,
+    /// Exact Catmull-Rom spline of the recovered control points.
+    Cubic,
+}
+
+impl From<Gating> for GatingMode {
+    fn from(g: Gating) -> Self {
+        match g {
+            Gating::Constant => GatingMode::Constant,
+            Gating::Linear => GatingMode::Linear,
+            Gating::Cubic => GatingMode::Cubic,
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a blob (fixed point) or a float reference over inputs and phases.
+    Eval {
+        /// The model blob (fixed-point runtime).
+        #[arg(long, conflicts_with = "reference", required_unless_present = "reference")]
+        model: Option<PathBuf>,
+        /// A PFNN weight directory or a PFNN-shaped .npz (float reference).
+        #[arg(long, requires = "gating")]
+        reference: Option<PathBuf>,
+        /// Gating of the float reference.
+        #[arg(long, value_enum)]
+        gating: Option<Gating>,
+        /// float32 (N, inputs) raw inputs in model units.
+        #[arg(long)]
+        inputs: PathBuf,
+        /// float32 (N,) phases in radians.
+        #[arg(long)]
+        phases: PathBuf,
+        /// float32 (N, outputs) outputs in model units.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write the raw int16 outputs of the runtime (with --model).
+        #[arg(long, requires = "model")]
+        raw_out: Option<PathBuf>,
+    },
+    /// Max and RMS absolute difference per PFNN output group and overall.
+    Compare {
+        /// First outputs (.npy).
+        a: PathBuf,
+        /// Second outputs (.npy).
+        b: PathBuf,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// The main job: the embedded default model (or the real PFNN) fixed vs float.
+    Demo {
+        /// Run on a PFNN weight directory instead (int8 cubic blob built in memory).
+        #[arg(long)]
+        pfnn: Option<PathBuf>,
+        /// Frames to run.
+        #[arg(long, default_value_t = 300)]
+        frames: usize,
+    },
+    /// Fixed vs float accuracy of int16 and int8 cubic blobs on a PFNN, vs the demo's own error.
+    Accuracy {
+        /// The PFNN weight directory.
+        #[arg(long)]
+        pfnn: PathBuf,
+        /// Samples per input spread.
+        #[arg(long, default_value_t = 64)]
+        samples: usize,
+        /// Seed of the input sampler.
+        #[arg(long, default_value_t = 7)]
+        seed: u64,
+        /// Also write every figure as JSON.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
+    /// Check (default) or rewrite the golden vectors of the default model.
+    Golden {
+        /// The golden directory.
+        #[arg(default_value = "tests/golden/default")]
+        dir: PathBuf,
+        /// Regenerate every file from the seeds instead of checking.
+        #[arg(long)]
+        write: bool,
+    },
+}
+
+fn load_reference(path: &Path, mode: GatingMode) -> Result<FloatPfnn> {
+    if path.is_dir() {
+        let tables = exporter::pfnn_dir::load_pfnn_dir(path)?;
+        Ok(FloatPfnn::from_tables(&tables, mode).0)
+    } else {
+        exporter::npz::float_pfnn_from_npz(path, mode)
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn eval_cmd(
+    model: Option<PathBuf>,
+    reference: Option<PathBuf>,
+    gating: Option<Gating>,
+    inputs: &Path,
+    phases: &Path,
+    out: &Path,
+    raw_out: Option<PathBuf>,
+) -> Result<()> {
+    let p = npy::read_vector_f32(phases)?;
+    if let Some(model) = model {
+        let blob = std::fs::read(&model).map_err(|e| anyhow!("cannot read {}: {e}", model.display()))?;
+        let m = phasegate::Model::from_bytes(&blob).map_err(|e| anyhow!("{}: {e}", model.display()))?;
+        let x = npy::read_matrix_f32(inputs, m.input_dim())?;
+        let run = eval::run_fixed(&blob, &x, &p)?;
+        if let Some(raw) = raw_out {
+            npy::write_matrix(&raw, &run.raw)?;
+        }
+        npy::write_matrix(out, &run.outputs)
+    } else {
+        let (Some(r), Some(g)) = (reference, gating) else { bail!("--reference needs --gating") };
+        let net = load_reference(&r, g.into())?;
+        let x = npy::read_matrix_f32(inputs, net.input_dim())?;
+        npy::write_matrix(out, &eval::run_reference(&net, &x, &p)?)
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Eval { model, reference, gating, inputs, phases, out, raw_out } => {
+            eval_cmd(model, reference, gating, &inputs, &phases, &out, raw_out)
+        }
+        Command::Compare { a, b, json } => {
+            let c = compare::compare(&npy::read_matrix_f32_any(&a)?, &npy::read_matrix_f32_any(&b)?)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&c)?);
+            } else {
+                print!("{}", c.table());
+            }
+            Ok(())
+        }
+        Command::Demo { pfnn, frames } => {
+            let (blob, net, title) = match pfnn {
+                None => (
+                    default_model::BLOB.to_vec(),
+                    default_model::float_model()?,
+                    "embedded default model (PFNN-shaped, hidden 32, int8 cubic)".to_string(),
+                ),
+                Some(dir) => {
+                    let tables = exporter::pfnn_dir::load_pfnn_dir(&dir)?;
+                    let (net, residual) = FloatPfnn::from_tables(&tables, GatingMode::Cubic);
+                    let (blob, _) = exporter::export::export_pfnn(&net, residual, &Default::default())?;
+                    (blob, net, format!("PFNN from {} (int8 cubic)", dir.display()))
+                }
+            };
+            print!("{}", demo::run_demo(&blob, &net, frames, 11)?.render(&title));
+            Ok(())
+        }
+        Command::Accuracy { pfnn, samples, seed, json } => {
+            let tables = exporter::pfnn_dir::load_pfnn_dir(&pfnn)?;
+            let a = accuracy::measure(&tables, samples, seed)?;
+            print!("{}", a.table());
+            println!(
+                "blob sizes: int16 cubic {} bytes, int8 cubic {} bytes",
+                a.int16_report.blob_bytes, a.int8_report.blob_bytes
+            );
+            if let Some(path) = json {
+                exporter::atomic::write_atomic(&path, &serde_json::to_vec_pretty(&a)?)?;
+            }
+            Ok(())
+        }
+        Command::Golden { dir, write } => {
+            if write {
+                golden::write(&dir)?;
+                println!("wrote golden vectors to {}", dir.display());
+            } else {
+                let n = golden::check(&dir)?;
+                println!("golden vectors: {n} frames bit-exact ({})", dir.display());
+            }
+            Ok(())
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {}", format!("{e:#}").replace('\n', " "));
+            ExitCode::FAILURE
+        }
+    }
 }
