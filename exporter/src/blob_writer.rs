@@ -79,9 +79,15 @@ fn weight_bytes(l: &BlobLayer, i: usize) -> Result<Vec<u8>, EncodeError> {
     let d = &l.desc;
     let n = usize::from(d.experts) * usize::from(d.out_dim) * usize::from(d.in_dim);
     if l.weights.len() != n {
-        return Err(EncodeError::Length { layer: i, what: "weights" });
+        return Err(EncodeError::Length {
+            layer: i,
+            what: "weights",
+        });
     }
-    let bad = || EncodeError::OutOfRange { layer: i, what: "weights" };
+    let bad = || EncodeError::OutOfRange {
+        layer: i,
+        what: "weights",
+    };
     let mut out = Vec::with_capacity(n * d.weights.bytes());
     for &w in &l.weights {
         match d.weights {
@@ -95,14 +101,20 @@ fn weight_bytes(l: &BlobLayer, i: usize) -> Result<Vec<u8>, EncodeError> {
 fn bias_bytes(l: &BlobLayer, i: usize) -> Result<Vec<u8>, EncodeError> {
     let d = &l.desc;
     if l.bias.len() != usize::from(d.experts) * usize::from(d.out_dim) {
-        return Err(EncodeError::Length { layer: i, what: "bias" });
+        return Err(EncodeError::Length {
+            layer: i,
+            what: "bias",
+        });
     }
     let mut out = Vec::new();
     for &b in &l.bias {
         match d.acc {
             AccWidth::I32 => out.extend(
                 i32::try_from(b)
-                    .map_err(|_| EncodeError::OutOfRange { layer: i, what: "bias" })?
+                    .map_err(|_| EncodeError::OutOfRange {
+                        layer: i,
+                        what: "bias",
+                    })?
                     .to_le_bytes(),
             ),
             AccWidth::I64 => out.extend(b.to_le_bytes()),
@@ -112,7 +124,10 @@ fn bias_bytes(l: &BlobLayer, i: usize) -> Result<Vec<u8>, EncodeError> {
 }
 
 fn stage_bytes(records: &[(f32, f32)]) -> Vec<u8> {
-    records.iter().flat_map(|(a, b)| a.to_le_bytes().into_iter().chain(b.to_le_bytes())).collect()
+    records
+        .iter()
+        .flat_map(|(a, b)| a.to_le_bytes().into_iter().chain(b.to_le_bytes()))
+        .collect()
 }
 
 /// Lays out the payload, fills in the header and returns the blob bytes.
@@ -126,14 +141,19 @@ pub fn encode(m: &BlobModel) -> Result<Vec<u8>, EncodeError> {
     let output_stage = payload.push(&stage_bytes(&m.output_stage))?;
     for (i, l) in m.layers.iter().enumerate() {
         if l.requant.len() != usize::from(l.desc.out_dim) {
-            return Err(EncodeError::Length { layer: i, what: "requant" });
+            return Err(EncodeError::Length {
+                layer: i,
+                what: "requant",
+            });
         }
         let mut desc = l.desc;
         desc.weight_section = payload.push(&weight_bytes(l, i)?)?;
         desc.bias_section = payload.push(&bias_bytes(l, i)?)?;
         let rq: Vec<u8> = l.requant.iter().flat_map(|r| r.to_bytes()).collect();
         desc.requant_section = payload.push(&rq)?;
-        layers.push(desc).map_err(|_| EncodeError::TooManyLayers(m.layers.len()))?;
+        layers
+            .push(desc)
+            .map_err(|_| EncodeError::TooManyLayers(m.layers.len()))?;
     }
     let dim = |n: usize, what| u16::try_from(n).map_err(|_| EncodeError::TooLarge(what));
     let header = Header {
@@ -148,7 +168,8 @@ pub fn encode(m: &BlobModel) -> Result<Vec<u8>, EncodeError> {
         layers,
         input_stage,
         output_stage,
-        payload_len: u32::try_from(payload.0.len()).map_err(|_| EncodeError::TooLarge("payload"))?,
+        payload_len: u32::try_from(payload.0.len())
+            .map_err(|_| EncodeError::TooLarge("payload"))?,
         payload_crc: crc32(&payload.0),
     };
     Ok(frame(&header, &payload.0))
@@ -159,7 +180,8 @@ pub fn encode(m: &BlobModel) -> Result<Vec<u8>, EncodeError> {
 pub fn frame(header: &Header, payload: &[u8]) -> Vec<u8> {
     let header_bytes = postcard::to_allocvec(header).unwrap_or_default();
     let header_len = u16::try_from(header_bytes.len()).unwrap_or(u16::MAX);
-    let mut out = Vec::with_capacity(PREAMBLE_LEN + header_bytes.len() + PAYLOAD_ALIGN + payload.len());
+    let mut out =
+        Vec::with_capacity(PREAMBLE_LEN + header_bytes.len() + PAYLOAD_ALIGN + payload.len());
     out.extend_from_slice(&MAGIC);
     out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
     out.extend_from_slice(&header_len.to_le_bytes());

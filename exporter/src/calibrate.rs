@@ -55,8 +55,16 @@ pub fn measure_ranges(net: &FloatPfnn, samples: &Samples) -> Ranges {
     let mut r = Ranges {
         input: vec![0.0; net.input_dim()],
         layer: vec![0.0; net.layers.len()],
-        rows: net.layers.iter().map(|l| vec![0.0; l.w.first().map_or(0, |w| w.nrows())]).collect(),
-        input_ms: net.layers.iter().map(|l| vec![0.0; l.w.first().map_or(0, |w| w.ncols())]).collect(),
+        rows: net
+            .layers
+            .iter()
+            .map(|l| vec![0.0; l.w.first().map_or(0, |w| w.nrows())])
+            .collect(),
+        input_ms: net
+            .layers
+            .iter()
+            .map(|l| vec![0.0; l.w.first().map_or(0, |w| w.ncols())])
+            .collect(),
     };
     let n = samples.inputs.len().max(1) as f64;
     for (x, &p) in samples.inputs.iter().zip(&samples.phases) {
@@ -64,7 +72,10 @@ pub fn measure_ranges(net: &FloatPfnn, samples: &Samples) -> Ranges {
         for (l, ms) in r.input_ms.iter_mut().enumerate() {
             let inputs: Vec<f64> = match l {
                 0 => t.x_norm.clone(),
-                _ => t.pre[l - 1].iter().map(|&v| crate::float_pfnn::elu(v)).collect(),
+                _ => t.pre[l - 1]
+                    .iter()
+                    .map(|&v| crate::float_pfnn::elu(v))
+                    .collect(),
             };
             for (m, v) in ms.iter_mut().zip(inputs) {
                 *m += v * v / n;

@@ -53,7 +53,10 @@ pub struct ResidualReport {
 
 impl From<Residual> for ResidualReport {
     fn from(r: Residual) -> Self {
-        ResidualReport { max_abs: r.max_abs, rel_frobenius: r.rel_frobenius }
+        ResidualReport {
+            max_abs: r.max_abs,
+            rel_frobenius: r.rel_frobenius,
+        }
     }
 }
 

@@ -22,8 +22,17 @@ pub fn describe(model: &Model<'_>) -> String {
     let _ = writeln!(s, "gating           {}", gating(&h.gating));
     let _ = writeln!(s, "input, output    {}, {}", h.input_dim, h.output_dim);
     let _ = writeln!(s, "blob bytes       {}", model.blob_len());
-    let _ = writeln!(s, "payload bytes    {} (CRC-32 {:#010x}, verified)", h.payload_len, h.payload_crc);
-    let _ = writeln!(s, "RAM needed       {} bytes (two i16 buffers of {})", h.ram_bytes, model.buffer_elements());
+    let _ = writeln!(
+        s,
+        "payload bytes    {} (CRC-32 {:#010x}, verified)",
+        h.payload_len, h.payload_crc
+    );
+    let _ = writeln!(
+        s,
+        "RAM needed       {} bytes (two i16 buffers of {})",
+        h.ram_bytes,
+        model.buffer_elements()
+    );
     let _ = writeln!(s, "MACs per frame   {}", h.macs_per_frame);
     let _ = writeln!(
         s,
@@ -55,6 +64,10 @@ pub fn describe(model: &Model<'_>) -> String {
             l.requant_section.offset,
         );
     }
-    let _ = writeln!(s, "\ninput stage @{} ({} B), output stage @{} ({} B)", h.input_stage.offset, h.input_stage.len, h.output_stage.offset, h.output_stage.len);
+    let _ = writeln!(
+        s,
+        "\ninput stage @{} ({} B), output stage @{} ({} B)",
+        h.input_stage.offset, h.input_stage.len, h.output_stage.offset, h.output_stage.len
+    );
     s
 }

@@ -2,14 +2,14 @@
 //! phase-spline control points, and run the float reference network that the
 //! fixed-point runtime is measured against.
 
-pub mod control_points;
-pub mod error;
-pub mod float_pfnn;
-pub mod pfnn_dir;
+pub mod atomic;
 pub mod blob_writer;
 pub mod calibrate;
-pub mod quantise;
-pub mod atomic;
+pub mod control_points;
+pub mod error;
 pub mod export;
-pub mod npz;
+pub mod float_pfnn;
 pub mod inspect;
+pub mod npz;
+pub mod pfnn_dir;
+pub mod quantise;

@@ -14,7 +14,11 @@ use exporter::float_pfnn::{FloatPfnn, GatingMode};
 use exporter::quantise::QuantOptions;
 
 #[derive(Parser)]
-#[command(name = "exporter", version, about = "Turns trained phase-gated networks into phasegate model blobs")]
+#[command(
+    name = "exporter",
+    version,
+    about = "Turns trained phase-gated networks into phasegate model blobs"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -91,26 +95,43 @@ enum Command {
 
 /// A progress display on stderr, hidden when stdout is not a terminal.
 fn spinner(msg: &str) -> ProgressBar {
-    let target = if std::io::stdout().is_terminal() { ProgressDrawTarget::stderr() } else { ProgressDrawTarget::hidden() };
+    let target = if std::io::stdout().is_terminal() {
+        ProgressDrawTarget::stderr()
+    } else {
+        ProgressDrawTarget::hidden()
+    };
     let pb = ProgressBar::with_draw_target(None, target);
-    pb.set_style(ProgressStyle::with_template("{spinner} {msg} [{elapsed}]").unwrap_or_else(|_| ProgressStyle::default_spinner()));
+    pb.set_style(
+        ProgressStyle::with_template("{spinner} {msg} [{elapsed}]")
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+    );
     pb.set_message(msg.to_string());
     pb.enable_steady_tick(Duration::from_millis(120));
     pb
 }
 
-fn load_pfnn_dir(dir: &Path, mode: GatingMode) -> Result<(FloatPfnn, Option<exporter::control_points::Residual>)> {
-    let target = if std::io::stdout().is_terminal() { ProgressDrawTarget::stderr() } else { ProgressDrawTarget::hidden() };
+fn load_pfnn_dir(
+    dir: &Path,
+    mode: GatingMode,
+) -> Result<(FloatPfnn, Option<exporter::control_points::Residual>)> {
+    let target = if std::io::stdout().is_terminal() {
+        ProgressDrawTarget::stderr()
+    } else {
+        ProgressDrawTarget::hidden()
+    };
     let bar = ProgressBar::with_draw_target(Some(0), target);
     bar.set_style(
         ProgressStyle::with_template("reading {msg} {bar:30} {pos}/{len} files [{elapsed}]")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     bar.set_message(dir.display().to_string());
-    let tables = exporter::pfnn_dir::load_pfnn_dir_with_progress(dir, &mut |done, total| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-    })?;
+    let tables = exporter::pfnn_dir::load_pfnn_dir_auto(
+        dir,
+        Some(&mut |done, total| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        }),
+    )?;
     bar.finish_and_clear();
     let pb = spinner(match mode {
         GatingMode::Cubic => "recovering control points",
@@ -121,9 +142,20 @@ fn load_pfnn_dir(dir: &Path, mode: GatingMode) -> Result<(FloatPfnn, Option<expo
     Ok(out)
 }
 
-fn export(net: &FloatPfnn, residual: Option<exporter::control_points::Residual>, q: &QuantArgs) -> Result<()> {
-    let weights = if q.weight_bits == 16 { WeightFormat::I16 } else { WeightFormat::I8 };
-    let opts = QuantOptions { weights, ..QuantOptions::default() };
+fn export(
+    net: &FloatPfnn,
+    residual: Option<exporter::control_points::Residual>,
+    q: &QuantArgs,
+) -> Result<()> {
+    let weights = if q.weight_bits == 16 {
+        WeightFormat::I16
+    } else {
+        WeightFormat::I8
+    };
+    let opts = QuantOptions {
+        weights,
+        ..QuantOptions::default()
+    };
     let pb = spinner("calibrating and quantising");
     let (blob, report) = export_pfnn(net, residual, &opts)?;
     pb.finish_and_clear();
@@ -153,18 +185,37 @@ fn write_outputs(blob: &[u8], report: &ExportReport, q: &QuantArgs) -> Result<()
 }
 
 fn summary(r: &ExportReport, out: &Path) {
-    println!("wrote {} ({} bytes, {} weights, {} gating)", out.display(), r.blob_bytes, r.weight_format, r.gating);
+    println!(
+        "wrote {} ({} bytes, {} weights, {} gating)",
+        out.display(),
+        r.blob_bytes,
+        r.weight_format,
+        r.gating
+    );
     if let Some(res) = &r.control_point_residual {
-        println!("control-point residual: max {:.3e}, relative {:.3e}", res.max_abs, res.rel_frobenius);
+        println!(
+            "control-point residual: max {:.3e}, relative {:.3e}",
+            res.max_abs, res.rel_frobenius
+        );
     }
-    println!("RAM {} bytes, {} MACs per frame", r.ram_bytes, r.macs_per_frame);
+    println!(
+        "RAM {} bytes, {} MACs per frame",
+        r.ram_bytes, r.macs_per_frame
+    );
     for l in &r.layers {
         println!(
             "layer {}: {}x{} x{} experts, acc {}, weight SQNR {:.1} dB, worst blended accumulator 2^{:.1}",
             l.index, l.out_dim, l.in_dim, l.experts, l.accumulator, l.weight_sqnr_db, l.max_blend_bits
         );
     }
-    println!("overflow proof: {}", if r.overflow_proof { "holds for every i16 input" } else { "FAILED" });
+    println!(
+        "overflow proof: {}",
+        if r.overflow_proof {
+            "holds for every i16 input"
+        } else {
+            "FAILED"
+        }
+    );
 }
 
 fn inspect(path: &Path) -> Result<()> {

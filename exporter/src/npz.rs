@@ -34,37 +34,58 @@ pub struct NpArray {
 
 /// Reads every float array of an `.npz` file.
 pub fn read_npz(path: &Path) -> Result<BTreeMap<String, NpArray>> {
-    let file = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let file =
+        std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
     read_npz_from(std::io::BufReader::new(file), path)
 }
 
 /// Reads every float array of an in-memory `.npz`; `path` names it in errors.
-pub fn read_npz_from(reader: impl Read + std::io::Seek, path: &Path) -> Result<BTreeMap<String, NpArray>> {
-    let mut zip = zip::ZipArchive::new(reader).with_context(|| format!("{} is not an .npz (zip) file", path.display()))?;
+pub fn read_npz_from(
+    reader: impl Read + std::io::Seek,
+    path: &Path,
+) -> Result<BTreeMap<String, NpArray>> {
+    let mut zip = zip::ZipArchive::new(reader)
+        .with_context(|| format!("{} is not an .npz (zip) file", path.display()))?;
     let mut out = BTreeMap::new();
     for i in 0..zip.len() {
         let mut entry = zip.by_index(i)?;
-        let Some(name) = npyz::npz::array_name_from_file_name(entry.name()).map(str::to_owned) else {
+        let Some(name) = npyz::npz::array_name_from_file_name(entry.name()).map(str::to_owned)
+        else {
             continue;
         };
         let mut bytes = Vec::new();
         entry.read_to_end(&mut bytes)?;
-        let npy = npyz::NpyFile::new(&bytes[..]).with_context(|| format!("{}: array {name}", path.display()))?;
+        let npy = npyz::NpyFile::new(&bytes[..])
+            .with_context(|| format!("{}: array {name}", path.display()))?;
         if npy.order() != npyz::Order::C {
-            bail!("{}: array {name} is Fortran-ordered; save it in C order", path.display());
+            bail!(
+                "{}: array {name} is Fortran-ordered; save it in C order",
+                path.display()
+            );
         }
         let shape = npy.shape().to_vec();
         let data: Vec<f64> = match npy.dtype() {
-            npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4 => {
+            npyz::DType::Plain(t)
+                if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4 =>
+            {
                 npy.into_vec::<f32>()?.into_iter().map(f64::from).collect()
             }
-            npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 => {
+            npyz::DType::Plain(t)
+                if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 =>
+            {
                 npy.into_vec::<f64>()?
             }
-            other => bail!("{}: array {name} has dtype {}, expected float32 or float64", path.display(), other.descr()),
+            other => bail!(
+                "{}: array {name} has dtype {}, expected float32 or float64",
+                path.display(),
+                other.descr()
+            ),
         };
         if let Some(k) = data.iter().position(|v| !v.is_finite()) {
-            bail!("{}: array {name} has a non-finite value at index {k}", path.display());
+            bail!(
+                "{}: array {name} has a non-finite value at index {k}",
+                path.display()
+            );
         }
         out.insert(name, NpArray { shape, data });
     }
@@ -80,7 +101,11 @@ pub fn write_npz(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> Result<(
     for (name, shape, data) in arrays {
         zip.start_file(npyz::npz::file_name_from_array_name(name), options)?;
         let mut bytes = Vec::new();
-        let mut w = npyz::WriteOptions::new().default_dtype().shape(shape).writer(&mut bytes).begin_nd()?;
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(shape)
+            .writer(&mut bytes)
+            .begin_nd()?;
         w.extend(data.iter().copied())?;
         w.finish()?;
         zip.write_all(&bytes)?;
@@ -90,7 +115,9 @@ pub fn write_npz(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> Result<(
 }
 
 fn take<'a>(arrays: &'a BTreeMap<String, NpArray>, name: &str, path: &Path) -> Result<&'a NpArray> {
-    arrays.get(name).ok_or_else(|| anyhow!("{}: missing array {name}", path.display()))
+    arrays
+        .get(name)
+        .ok_or_else(|| anyhow!("{}: missing array {name}", path.display()))
 }
 
 fn vector(a: &NpArray, name: &str) -> Result<Array1<f64>> {
@@ -110,9 +137,15 @@ pub fn float_pfnn_from_npz_bytes(bytes: &[u8], name: &Path, mode: GatingMode) ->
     float_pfnn_from_arrays(&read_npz_from(Cursor::new(bytes), name)?, name, mode)
 }
 
-fn float_pfnn_from_arrays(arrays: &BTreeMap<String, NpArray>, path: &Path, mode: GatingMode) -> Result<FloatPfnn> {
+fn float_pfnn_from_arrays(
+    arrays: &BTreeMap<String, NpArray>,
+    path: &Path,
+    mode: GatingMode,
+) -> Result<FloatPfnn> {
     let arrays = arrays;
-    let v = |n: &str| -> Result<Array1<f64>> { vector(take(arrays, n, path)?, n).with_context(|| path.display().to_string()) };
+    let v = |n: &str| -> Result<Array1<f64>> {
+        vector(take(arrays, n, path)?, n).with_context(|| path.display().to_string())
+    };
     let (xmean, xstd, ymean, ystd) = (v("Xmean")?, v("Xstd")?, v("Ymean")?, v("Ystd")?);
     if let Some(i) = xstd.iter().chain(&ystd).position(|&s| s <= 0.0) {
         bail!("{}: Xstd/Ystd entry {i} is not positive", path.display());
@@ -123,32 +156,64 @@ fn float_pfnn_from_arrays(arrays: &BTreeMap<String, NpArray>, path: &Path, mode:
         let (wn, bn) = (format!("W{l}"), format!("b{l}"));
         let (w, b) = (take(arrays, &wn, path)?, take(arrays, &bn, path)?);
         let [k, rows, cols] = w.shape[..] else {
-            bail!("{}: {wn} has shape {:?}, expected (K, rows, cols)", path.display(), w.shape);
+            bail!(
+                "{}: {wn} has shape {:?}, expected (K, rows, cols)",
+                path.display(),
+                w.shape
+            );
         };
         let (k, rows, cols) = (k as usize, rows as usize, cols as usize);
         if b.shape != [k as u64, rows as u64] || cols != width || k == 0 {
-            bail!("{}: {wn} {:?} / {bn} {:?} do not fit a layer with {width} inputs", path.display(), w.shape, b.shape);
+            bail!(
+                "{}: {wn} {:?} / {bn} {:?} do not fit a layer with {width} inputs",
+                path.display(),
+                w.shape,
+                b.shape
+            );
         }
-        let mut layer = ExpertLayer { w: Vec::new(), b: Vec::new() };
+        let mut layer = ExpertLayer {
+            w: Vec::new(),
+            b: Vec::new(),
+        };
         for e in 0..k {
             let ws = &w.data[e * rows * cols..(e + 1) * rows * cols];
-            layer.w.push(Array2::from_shape_vec((rows, cols), ws.to_vec())?);
-            layer.b.push(Array1::from(b.data[e * rows..(e + 1) * rows].to_vec()));
+            layer
+                .w
+                .push(Array2::from_shape_vec((rows, cols), ws.to_vec())?);
+            layer
+                .b
+                .push(Array1::from(b.data[e * rows..(e + 1) * rows].to_vec()));
         }
         layers.push(layer);
         width = rows;
     }
     if width != ymean.len() || xstd.len() != xmean.len() || ystd.len() != ymean.len() {
-        bail!("{}: output width {width} does not match Ymean/Ystd", path.display());
+        bail!(
+            "{}: output width {width} does not match Ymean/Ystd",
+            path.display()
+        );
     }
-    let layers: [ExpertLayer; 3] = layers.try_into().map_err(|_| anyhow!("three layers expected"))?;
+    let layers: [ExpertLayer; 3] = layers
+        .try_into()
+        .map_err(|_| anyhow!("three layers expected"))?;
     if layers.iter().any(|l| l.experts() != layers[0].experts()) {
         bail!("{}: layers have different expert counts", path.display());
     }
     if mode == GatingMode::Cubic && layers[0].experts() != 4 {
-        bail!("{}: cubic gating needs 4 control points, the file has {}", path.display(), layers[0].experts());
+        bail!(
+            "{}: cubic gating needs 4 control points, the file has {}",
+            path.display(),
+            layers[0].experts()
+        );
     }
-    Ok(FloatPfnn { mode, xmean, xstd, ymean, ystd, layers })
+    Ok(FloatPfnn {
+        mode,
+        xmean,
+        xstd,
+        ymean,
+        ystd,
+        layers,
+    })
 }
 
 /// Writes a float network in the layout above (float32).
@@ -165,7 +230,11 @@ pub fn float_pfnn_to_npz(net: &FloatPfnn, path: &Path) -> Result<()> {
     for (l, layer) in net.layers.iter().enumerate() {
         let (rows, cols) = layer.w[0].dim();
         let k = layer.experts() as u64;
-        let w: Vec<f32> = layer.w.iter().flat_map(|m| m.iter().map(|&v| v as f32).collect::<Vec<_>>()).collect();
+        let w: Vec<f32> = layer
+            .w
+            .iter()
+            .flat_map(|m| m.iter().map(|&v| v as f32).collect::<Vec<_>>())
+            .collect();
         let b: Vec<f32> = layer.b.iter().flat_map(f).collect();
         arrays.push((W[l], vec![k, rows as u64, cols as u64], w));
         arrays.push((B[l], vec![k, rows as u64], b));
@@ -179,8 +248,14 @@ mod tests {
 
     fn tiny() -> FloatPfnn {
         let layer = |r: usize, c: usize| ExpertLayer {
-            w: (0..4).map(|k| Array2::from_shape_fn((r, c), |(i, j)| (k * 7 + i * 3 + j) as f64 * 0.25 - 1.0)).collect(),
-            b: (0..4).map(|k| Array1::from_shape_fn(r, |i| (k + i) as f64 * 0.5)).collect(),
+            w: (0..4)
+                .map(|k| {
+                    Array2::from_shape_fn((r, c), |(i, j)| (k * 7 + i * 3 + j) as f64 * 0.25 - 1.0)
+                })
+                .collect(),
+            b: (0..4)
+                .map(|k| Array1::from_shape_fn(r, |i| (k + i) as f64 * 0.5))
+                .collect(),
         };
         FloatPfnn {
             mode: GatingMode::Cubic,
@@ -208,7 +283,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("bad.npz");
         write_npz(&p, &[("Xmean", vec![2], vec![0.0, 1.0])]).unwrap();
-        let e = format!("{:#}", float_pfnn_from_npz(&p, GatingMode::Cubic).unwrap_err());
+        let e = format!(
+            "{:#}",
+            float_pfnn_from_npz(&p, GatingMode::Cubic).unwrap_err()
+        );
         assert!(e.contains("missing array Xstd"), "{e}");
         write_npz(&p, &[("Xmean", vec![2], vec![0.0, f32::NAN])]).unwrap();
         let e = format!("{:#}", read_npz(&p).unwrap_err());

@@ -131,6 +131,50 @@ pub fn bias_file_name(layer: usize, table: usize) -> String {
     format!("b{layer}_{table:03}.bin")
 }
 
+/// Reads a directory's dimensions off its file sizes: inputs from
+/// `Xmean.bin`, outputs from `Ymean.bin`, hidden width from `b0_000.bin`,
+/// and the table count from the run of `W0_000.bin`, `W0_001.bin`, ...
+/// The loader then checks every file against them, so a directory whose
+/// files disagree is still refused, naming the first file that does not fit.
+pub fn infer_dims(dir: &Path) -> Result<PfnnDims, ImportError> {
+    check_is_dir(dir)?;
+    let count = |name: &str| -> Result<usize, ImportError> {
+        let path = dir.join(name);
+        let len = fs::metadata(&path)
+            .map_err(|e| ImportError::from_io(path.clone(), e))?
+            .len();
+        if len == 0 || len % 4 != 0 {
+            return Err(ImportError::WrongSize {
+                path,
+                expected: len.next_multiple_of(4).max(4),
+                found: len,
+            });
+        }
+        Ok((len / 4) as usize)
+    };
+    let input = count("Xmean.bin")?;
+    let output = count("Ymean.bin")?;
+    let hidden = count(&bias_file_name(0, 0))?;
+    let tables = (0..)
+        .take_while(|&t| dir.join(weight_file_name(0, t)).is_file())
+        .count();
+    Ok(PfnnDims {
+        input,
+        hidden,
+        output,
+        tables,
+    })
+}
+
+/// Loads a PFNN-format directory of any size, its dimensions read off
+/// the files by [`infer_dims`].
+pub fn load_pfnn_dir_auto(
+    dir: &Path,
+    progress: Option<&mut dyn FnMut(usize, usize)>,
+) -> Result<PfnnTables, ImportError> {
+    load_pfnn_dir_dims(dir, infer_dims(dir)?, progress)
+}
+
 /// Loads the published PFNN (342/512/311, 50 tables) from `dir`.
 pub fn load_pfnn_dir(dir: &Path) -> Result<PfnnTables, ImportError> {
     load_pfnn_dir_dims(dir, PfnnDims::PFNN, None)

@@ -12,7 +12,9 @@
 //!   does not depend on the calibration at all; see [`LayerReport::proof`].
 
 use ndarray::Array2;
-use phasegate::blob::{AccWidth, Activation, Gating, LayerDesc, LayerOp, ModelKind, Requant, Section, WeightFormat};
+use phasegate::blob::{
+    AccWidth, Activation, Gating, LayerDesc, LayerOp, ModelKind, Requant, Section, WeightFormat,
+};
 use phasegate::{Gate, Phase};
 use serde::Serialize;
 
@@ -166,8 +168,15 @@ fn bits(v: f64) -> f64 {
 
 /// Quantises `net` (a PFNN-shaped float network) into a blob model.
 pub fn quantise_pfnn(net: &FloatPfnn, opts: &QuantOptions) -> Result<Quantised, QuantError> {
-    if net.xstd.iter().chain(&net.ystd).any(|s| !s.is_finite() || *s <= 0.0) {
-        return Err(QuantError::Invalid("normalisation std must be finite and positive".into()));
+    if net
+        .xstd
+        .iter()
+        .chain(&net.ystd)
+        .any(|s| !s.is_finite() || *s <= 0.0)
+    {
+        return Err(QuantError::Invalid(
+            "normalisation std must be finite and positive".into(),
+        ));
     }
     let experts = net.layers[0].experts();
     let gating = gating_for(net.mode, experts)?;
@@ -192,7 +201,14 @@ pub fn quantise_pfnn(net: &FloatPfnn, opts: &QuantOptions) -> Result<Quantised, 
     // against activation rounding noise (see `column_scales`).
     let last = net.layers.len() - 1;
     let input_caps = vec![f64::from(1u32 << input_frac); net.input_dim()];
-    let mut in_scales = column_scales(&net.layers[0], &input_caps, &ranges.input_ms[0], None, q, false);
+    let mut in_scales = column_scales(
+        &net.layers[0],
+        &input_caps,
+        &ranges.input_ms[0],
+        None,
+        q,
+        false,
+    );
     let input_stage = net
         .xmean
         .iter()
@@ -207,19 +223,40 @@ pub fn quantise_pfnn(net: &FloatPfnn, opts: &QuantOptions) -> Result<Quantised, 
     for (li, layer) in net.layers.iter().enumerate() {
         let is_last = li == last;
         let row_max = &ranges.rows[li];
-        let caps: Vec<f64> = row_max.iter().map(|&m| ACT_MAX / (opts.headroom * m.max(1e-6))).collect();
+        let caps: Vec<f64> = row_max
+            .iter()
+            .map(|&m| ACT_MAX / (opts.headroom * m.max(1e-6)))
+            .collect();
         // Hidden rows get a power-of-two format each (ELU needs to know
         // where 1.0 is); output rows a free scale, undone by the output stage.
         let targets = if is_last {
             caps.clone()
         } else {
             let ystd = (li + 1 == last).then(|| net.ystd.to_vec());
-            column_scales(&net.layers[li + 1], &caps, &ranges.input_ms[li + 1], ystd.as_deref(), q, true)
+            column_scales(
+                &net.layers[li + 1],
+                &caps,
+                &ranges.input_ms[li + 1],
+                ystd.as_deref(),
+                q,
+                true,
+            )
         };
-        let fracs: Vec<u8> =
-            targets.iter().map(|&t| if is_last { 0 } else { t.log2().round().clamp(0.0, 15.0) as u8 }).collect();
-        let in_power: Vec<f64> =
-            ranges.input_ms[li].iter().zip(&in_scales).map(|(m, u)| m * u * u).collect();
+        let fracs: Vec<u8> = targets
+            .iter()
+            .map(|&t| {
+                if is_last {
+                    0
+                } else {
+                    t.log2().round().clamp(0.0, 15.0) as u8
+                }
+            })
+            .collect();
+        let in_power: Vec<f64> = ranges.input_ms[li]
+            .iter()
+            .zip(&in_scales)
+            .map(|(m, u)| m * u * u)
+            .collect();
         let spec = LayerSpec {
             index: li,
             in_scales: &in_scales,
@@ -229,7 +266,10 @@ pub fn quantise_pfnn(net: &FloatPfnn, opts: &QuantOptions) -> Result<Quantised, 
             elu: !is_last,
         };
         let (bl, rep) = quantise_layer(&spec, layer, q, opts.weights, gsum)?;
-        reports.push(LayerReport { calibrated_max: ranges.layer[li], ..rep });
+        reports.push(LayerReport {
+            calibrated_max: ranges.layer[li],
+            ..rep
+        });
         layers.push(bl);
         if is_last {
             output_stage = targets
@@ -241,7 +281,13 @@ pub fn quantise_pfnn(net: &FloatPfnn, opts: &QuantOptions) -> Result<Quantised, 
         in_scales = targets;
     }
     Ok(Quantised {
-        model: BlobModel { kind: ModelKind::Pfnn, gating, input_stage, output_stage, layers },
+        model: BlobModel {
+            kind: ModelKind::Pfnn,
+            gating,
+            input_stage,
+            output_stage,
+            layers,
+        },
         layers: reports,
         ranges,
         input_frac,
@@ -285,7 +331,11 @@ fn column_scales(
             .zip(&colmax)
             .map(|(&cap, &cm)| {
                 let u = cap.min(t * cm.max(floor)).max(1.0);
-                if pow2 { u.log2().floor().exp2() } else { u }
+                if pow2 {
+                    u.log2().floor().exp2()
+                } else {
+                    u
+                }
             })
             .collect()
     };
@@ -293,14 +343,27 @@ fn column_scales(
         let act_power: f64 = mean_sq.iter().zip(u).map(|(m, u)| m * u * u).sum();
         (0..rows)
             .map(|i| {
-                let wmax = absmax[i].iter().zip(u).map(|(a, u)| a / u).fold(0.0, f64::max);
+                let wmax = absmax[i]
+                    .iter()
+                    .zip(u)
+                    .map(|(a, u)| a / u)
+                    .fold(0.0, f64::max);
                 let act_noise: f64 = w2[i].iter().zip(u).map(|(w, u)| w / (u * u)).sum();
                 let rw = row_weight.map_or(1.0, |r| r[i] * r[i]);
                 rw * ((wmax / q).powi(2) * act_power + act_noise) / 12.0
             })
             .sum()
     };
-    let mut best = caps.iter().map(|&c| if pow2 { c.max(1.0).log2().floor().exp2() } else { c }).collect::<Vec<_>>();
+    let mut best = caps
+        .iter()
+        .map(|&c| {
+            if pow2 {
+                c.max(1.0).log2().floor().exp2()
+            } else {
+                c
+            }
+        })
+        .collect::<Vec<_>>();
     let mut best_cost = cost(&best);
     for step in -40..=80 {
         let t = f64::from(step).exp2();
@@ -344,7 +407,13 @@ fn best_row_scale(
         layer
             .w
             .iter()
-            .flat_map(|w| w.row(i).iter().enumerate().map(|(j, &v)| (j, v)).collect::<Vec<_>>())
+            .flat_map(|w| {
+                w.row(i)
+                    .iter()
+                    .enumerate()
+                    .map(|(j, &v)| (j, v))
+                    .collect::<Vec<_>>()
+            })
             .map(|(j, v)| {
                 let v = eff(v, j);
                 let d = v - (v * scale).round().clamp(-q, q) / scale;
@@ -355,7 +424,13 @@ fn best_row_scale(
     (0..=40)
         .map(|step| max_scale / (1.0 - 0.01 * f64::from(step)))
         .map(|s| (row_err(s), s))
-        .fold((f64::INFINITY, max_scale), |best, c| if c.0 < best.0 { c } else { best })
+        .fold((f64::INFINITY, max_scale), |best, c| {
+            if c.0 < best.0 {
+                c
+            } else {
+                best
+            }
+        })
         .1
 }
 
@@ -384,9 +459,19 @@ fn quantise_layer(
         let maxabs = layer
             .w
             .iter()
-            .flat_map(|w| w.row(i).iter().enumerate().map(|(j, &v)| eff(v, j).abs()).collect::<Vec<_>>())
+            .flat_map(|w| {
+                w.row(i)
+                    .iter()
+                    .enumerate()
+                    .map(|(j, &v)| eff(v, j).abs())
+                    .collect::<Vec<_>>()
+            })
             .fold(0.0, f64::max);
-        let scale = if maxabs > 0.0 { best_row_scale(layer, i, q / maxabs, q, &eff, spec.in_power) } else { 1.0 };
+        let scale = if maxabs > 0.0 {
+            best_row_scale(layer, i, q / maxabs, q, &eff, spec.in_power)
+        } else {
+            1.0
+        };
         let mut l1 = vec![0i64; experts];
         for (k, w) in layer.w.iter().enumerate() {
             let base = (k * out_dim + i) * in_dim;
@@ -407,7 +492,11 @@ fn quantise_layer(
         r.l1.iter().all(|&l| l << 15 <= i64::from(i32::MAX))
             && (0..experts).all(|k| i32::try_from(bias[k * out_dim + i]).is_ok())
     });
-    let acc = if fits_i32 { AccWidth::I32 } else { AccWidth::I64 };
+    let acc = if fits_i32 {
+        AccWidth::I32
+    } else {
+        AccWidth::I64
+    };
     let mut requant = Vec::with_capacity(out_dim);
     let (mut max_dot, mut max_blend) = (0.0f64, 0.0f64);
     for (i, r) in rows.iter().enumerate() {
@@ -419,7 +508,9 @@ fn quantise_layer(
         if blend >= i128::from(i64::MAX) {
             return Err(QuantError::Overflow { layer: li, row: i });
         }
-        max_dot = max_dot.max(bits(r.l1.iter().copied().max().unwrap_or(0) as f64 * 32768.0));
+        max_dot = max_dot.max(bits(
+            r.l1.iter().copied().max().unwrap_or(0) as f64 * 32768.0,
+        ));
         max_blend = max_blend.max(bits(blend as f64));
         let pre = (128 - blend.leading_zeros()).saturating_sub(31) as u8;
         let m_real = spec.targets[i] / (Q16 * r.scale) * f64::from(pre).exp2();
@@ -434,13 +525,20 @@ fn quantise_layer(
         experts: experts as u16,
         weights: format,
         acc,
-        activation: if spec.elu { Activation::Elu } else { Activation::Identity },
+        activation: if spec.elu {
+            Activation::Elu
+        } else {
+            Activation::Identity
+        },
         gated: true,
         weight_section: Section::default(),
         bias_section: Section::default(),
         requant_section: Section::default(),
     };
-    let frac_range = spec.fracs.iter().fold((u8::MAX, 0u8), |(lo, hi), &f| (lo.min(f), hi.max(f)));
+    let frac_range = spec
+        .fracs
+        .iter()
+        .fold((u8::MAX, 0u8), |(lo, hi), &f| (lo.min(f), hi.max(f)));
     let report = LayerReport {
         index: li,
         in_dim,
@@ -457,7 +555,15 @@ fn quantise_layer(
         // above). Pre-shift: the blend fits i32 after it, so sat32 never clips.
         proof: true,
     };
-    Ok((BlobLayer { desc, weights, bias, requant }, report))
+    Ok((
+        BlobLayer {
+            desc,
+            weights,
+            bias,
+            requant,
+        },
+        report,
+    ))
 }
 
 /// `m * 2^-post == m_real` with `m` in `[2^30, 2^31)`, post in `[0, 62]`.
@@ -478,7 +584,12 @@ fn multiplier(m_real: f64, pre: u8) -> Option<Requant> {
     if !(0..=62).contains(&post) || m >= 2147483648.0 {
         return None;
     }
-    Some(Requant { multiplier: m as i32, pre_shift: pre, post_shift: post as u8, frac: 0 })
+    Some(Requant {
+        multiplier: m as i32,
+        pre_shift: pre,
+        post_shift: post as u8,
+        frac: 0,
+    })
 }
 
 #[cfg(test)]

@@ -51,7 +51,14 @@ pub fn sample_matrix(net: &FloatPfnn, n: usize, spread: f64, seed: u64) -> (Matr
     let s = normal_inputs(&net.xmean.to_vec(), &net.xstd.to_vec(), n, spread, seed);
     let cols = net.input_dim();
     let data = s.inputs.iter().flatten().map(|&v| v as f32).collect();
-    (Matrix { rows: n, cols, data }, s.phases.iter().map(|&p| p as f32).collect())
+    (
+        Matrix {
+            rows: n,
+            cols,
+            data,
+        },
+        s.phases.iter().map(|&p| p as f32).collect(),
+    )
 }
 
 /// Measures int16 and int8 cubic blobs and the demo's constant mode against
@@ -59,8 +66,14 @@ pub fn sample_matrix(net: &FloatPfnn, n: usize, spread: f64, seed: u64) -> (Matr
 pub fn measure(tables: &PfnnTables, samples: usize, seed: u64) -> Result<Accuracy> {
     let (cubic, residual) = FloatPfnn::from_tables(tables, GatingMode::Cubic);
     let (constant, _) = FloatPfnn::from_tables(tables, GatingMode::Constant);
-    let opts16 = QuantOptions { weights: WeightFormat::I16, ..QuantOptions::default() };
-    let opts8 = QuantOptions { weights: WeightFormat::I8, ..QuantOptions::default() };
+    let opts16 = QuantOptions {
+        weights: WeightFormat::I16,
+        ..QuantOptions::default()
+    };
+    let opts8 = QuantOptions {
+        weights: WeightFormat::I8,
+        ..QuantOptions::default()
+    };
     let (blob16, int16_report) = export_pfnn(&cubic, residual, &opts16)?;
     let (blob8, int8_report) = export_pfnn(&cubic, residual, &opts8)?;
     let mut rows = Vec::new();
@@ -74,7 +87,13 @@ pub fn measure(tables: &PfnnTables, samples: usize, seed: u64) -> Result<Accurac
             demo_constant: compare(&run_reference(&constant, &x, &p)?, &reference)?,
         });
     }
-    Ok(Accuracy { samples, seed, rows, int16_report, int8_report })
+    Ok(Accuracy {
+        samples,
+        seed,
+        rows,
+        int16_report,
+        int8_report,
+    })
 }
 
 impl Accuracy {
@@ -82,7 +101,15 @@ impl Accuracy {
     pub fn table(&self) -> String {
         let mut s = format!(
             "{:>6} | {:>10} {:>10} | {:>10} {:>10} | {:>10} {:>10} | {:>9} {:>9}\n",
-            "spread", "i16 rms", "i16 max", "i8 rms", "i8 max", "demo rms", "demo max", "i8/demo r", "i8/demo m"
+            "spread",
+            "i16 rms",
+            "i16 max",
+            "i8 rms",
+            "i8 max",
+            "demo rms",
+            "demo max",
+            "i8/demo r",
+            "i8/demo m"
         );
         for r in &self.rows {
             let (a, b, c) = (&r.int16.overall, &r.int8.overall, &r.demo_constant.overall);

@@ -41,7 +41,13 @@ pub struct Comparison {
     pub overall: GroupError,
 }
 
-fn group_error(a: &Matrix<f32>, b: &Matrix<f32>, name: &str, start: usize, end: usize) -> GroupError {
+fn group_error(
+    a: &Matrix<f32>,
+    b: &Matrix<f32>,
+    name: &str,
+    start: usize,
+    end: usize,
+) -> GroupError {
     let (mut max, mut sq, mut n) = (0.0f64, 0.0f64, 0usize);
     for (ra, rb) in a.iter_rows().zip(b.iter_rows()) {
         for (&x, &y) in ra[start..end].iter().zip(&rb[start..end]) {
@@ -64,20 +70,36 @@ fn group_error(a: &Matrix<f32>, b: &Matrix<f32>, name: &str, start: usize, end: 
 /// Compares `a` with `b` (same shape).
 pub fn compare(a: &Matrix<f32>, b: &Matrix<f32>) -> Result<Comparison> {
     if (a.rows, a.cols) != (b.rows, b.cols) {
-        bail!("shapes differ: ({}, {}) vs ({}, {})", a.rows, a.cols, b.rows, b.cols);
+        bail!(
+            "shapes differ: ({}, {}) vs ({}, {})",
+            a.rows,
+            a.cols,
+            b.rows,
+            b.cols
+        );
     }
     let groups = if a.cols == 311 {
-        PFNN_GROUPS.iter().map(|&(n, s, e)| group_error(a, b, n, s, e)).collect()
+        PFNN_GROUPS
+            .iter()
+            .map(|&(n, s, e)| group_error(a, b, n, s, e))
+            .collect()
     } else {
         Vec::new()
     };
-    Ok(Comparison { rows: a.rows, groups, overall: group_error(a, b, "overall", 0, a.cols) })
+    Ok(Comparison {
+        rows: a.rows,
+        groups,
+        overall: group_error(a, b, "overall", 0, a.cols),
+    })
 }
 
 impl Comparison {
     /// A readable table.
     pub fn table(&self) -> String {
-        let mut s = format!("{:<18} {:>10} {:>12} {:>12}\n", "group", "columns", "max abs", "rms");
+        let mut s = format!(
+            "{:<18} {:>10} {:>12} {:>12}\n",
+            "group", "columns", "max abs", "rms"
+        );
         for g in self.groups.iter().chain(std::iter::once(&self.overall)) {
             s += &format!(
                 "{:<18} {:>10} {:>12.6} {:>12.6}\n",
@@ -97,7 +119,11 @@ mod tests {
 
     #[test]
     fn groups_and_nan() {
-        let a = Matrix { rows: 1, cols: 311, data: vec![0.0f32; 311] };
+        let a = Matrix {
+            rows: 1,
+            cols: 311,
+            data: vec![0.0f32; 311],
+        };
         let mut b = a.clone();
         b.data[3] = 2.0;
         b.data[100] = -1.0;

@@ -42,7 +42,9 @@ fn layer(rng: &mut ChaCha8Rng, rows: usize, cols: usize, gain: f64) -> ExpertLay
     let w = (0..4)
         .map(|_| base.mapv(|v| f64::from((v + normal(rng, 0.5 * sd)) as f32)))
         .collect();
-    let b = (0..4).map(|_| Array1::from_shape_fn(rows, |_| normal(rng, 0.1))).collect();
+    let b = (0..4)
+        .map(|_| Array1::from_shape_fn(rows, |_| normal(rng, 0.1)))
+        .collect();
     ExpertLayer { w, b }
 }
 
@@ -58,10 +60,21 @@ pub fn generate() -> FloatPfnn {
         layer(&mut rng, HIDDEN, HIDDEN, 1.5),
         layer(&mut rng, OUTPUT, HIDDEN, 1.0),
     ];
-    FloatPfnn { mode: GatingMode::Cubic, xmean, xstd, ymean, ystd, layers }
+    FloatPfnn {
+        mode: GatingMode::Cubic,
+        xmean,
+        xstd,
+        ymean,
+        ystd,
+        layers,
+    }
 }
 
 /// The checked-in float source, loaded.
 pub fn float_model() -> anyhow::Result<FloatPfnn> {
-    exporter::npz::float_pfnn_from_npz_bytes(NPZ, std::path::Path::new("embedded model.npz"), GatingMode::Cubic)
+    exporter::npz::float_pfnn_from_npz_bytes(
+        NPZ,
+        std::path::Path::new("embedded model.npz"),
+        GatingMode::Cubic,
+    )
 }

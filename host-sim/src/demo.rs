@@ -27,7 +27,9 @@ pub struct DemoReport {
 /// frames) with inputs drawn from the model's normalisation statistics.
 pub fn run_demo(blob: &[u8], net: &FloatPfnn, frames: usize, seed: u64) -> Result<DemoReport> {
     let (x, _) = sample_matrix(net, frames, 1.0, seed);
-    let phases: Vec<f32> = (0..frames).map(|i| ((i as f64 * TAU / 60.0) % TAU) as f32).collect();
+    let phases: Vec<f32> = (0..frames)
+        .map(|i| ((i as f64 * TAU / 60.0) % TAU) as f32)
+        .collect();
     let fixed = run_fixed(blob, &x, &phases)?;
     let float = run_reference(net, &x, &phases)?;
     let model = phasegate::Model::from_bytes(blob).map_err(|e| anyhow::anyhow!("{e}"))?;

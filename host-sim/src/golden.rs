@@ -40,20 +40,44 @@ pub fn write(dir: &Path) -> Result<()> {
 /// Checks the blob in `dir` against its golden vectors, bit for bit.
 /// Returns the number of frames compared.
 pub fn check(dir: &Path) -> Result<usize> {
-    let blob = std::fs::read(dir.join("model.blob")).with_context(|| format!("cannot read {}/model.blob", dir.display()))?;
-    let model = phasegate::Model::from_bytes(&blob).map_err(|e| anyhow::anyhow!("model.blob: {e}"))?;
+    let blob = std::fs::read(dir.join("model.blob"))
+        .with_context(|| format!("cannot read {}/model.blob", dir.display()))?;
+    let model =
+        phasegate::Model::from_bytes(&blob).map_err(|e| anyhow::anyhow!("model.blob: {e}"))?;
     let x = read_matrix_f32(&dir.join("inputs.npy"), model.input_dim())?;
     let p = read_vector_f32(&dir.join("phases.npy"))?;
     let want_q = read_matrix_i16(&dir.join("expected_q.npy"))?;
     let want = crate::npy::read_matrix_f32_any(&dir.join("expected.npy"))?;
     let run = run_fixed(&blob, &x, &p)?;
-    if let Some(i) = run.raw.data.iter().zip(&want_q.data).position(|(a, b)| a != b) {
-        bail!("golden mismatch: frame {}, output {}: {} != expected {}", i / want_q.cols, i % want_q.cols, run.raw.data[i], want_q.data[i]);
+    if let Some(i) = run
+        .raw
+        .data
+        .iter()
+        .zip(&want_q.data)
+        .position(|(a, b)| a != b)
+    {
+        bail!(
+            "golden mismatch: frame {}, output {}: {} != expected {}",
+            i / want_q.cols,
+            i % want_q.cols,
+            run.raw.data[i],
+            want_q.data[i]
+        );
     }
     if run.raw.data.len() != want_q.data.len() {
-        bail!("golden mismatch: {} outputs, expected {}", run.raw.data.len(), want_q.data.len());
+        bail!(
+            "golden mismatch: {} outputs, expected {}",
+            run.raw.data.len(),
+            want_q.data.len()
+        );
     }
-    if let Some(i) = run.outputs.data.iter().zip(&want.data).position(|(a, b)| a.to_bits() != b.to_bits()) {
+    if let Some(i) = run
+        .outputs
+        .data
+        .iter()
+        .zip(&want.data)
+        .position(|(a, b)| a.to_bits() != b.to_bits())
+    {
         bail!("golden mismatch in de-quantised output {i}");
     }
     Ok(x.rows)

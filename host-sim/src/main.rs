@@ -10,7 +10,11 @@ use std::process::ExitCode;
 use host_sim::{accuracy, compare, default_model, demo, eval, golden, npy};
 
 #[derive(Parser)]
-#[command(name = "host-sim", version, about = "Runs phasegate models on the host and checks them")]
+#[command(
+    name = "host-sim",
+    version,
+    about = "Runs phasegate models on the host and checks them"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -41,7 +45,11 @@ enum Command {
     /// Run a blob (fixed point) or a float reference over inputs and phases.
     Eval {
         /// The model blob (fixed-point runtime).
-        #[arg(long, conflicts_with = "reference", required_unless_present = "reference")]
+        #[arg(
+            long,
+            conflicts_with = "reference",
+            required_unless_present = "reference"
+        )]
         model: Option<PathBuf>,
         /// A PFNN weight directory or a PFNN-shaped .npz (float reference).
         #[arg(long, requires = "gating")]
@@ -109,7 +117,7 @@ enum Command {
 
 fn load_reference(path: &Path, mode: GatingMode) -> Result<FloatPfnn> {
     if path.is_dir() {
-        let tables = exporter::pfnn_dir::load_pfnn_dir(path)?;
+        let tables = exporter::pfnn_dir::load_pfnn_dir_auto(path, None)?;
         Ok(FloatPfnn::from_tables(&tables, mode).0)
     } else {
         exporter::npz::float_pfnn_from_npz(path, mode)
@@ -128,8 +136,10 @@ fn eval_cmd(
 ) -> Result<()> {
     let p = npy::read_vector_f32(phases)?;
     if let Some(model) = model {
-        let blob = std::fs::read(&model).map_err(|e| anyhow!("cannot read {}: {e}", model.display()))?;
-        let m = phasegate::Model::from_bytes(&blob).map_err(|e| anyhow!("{}: {e}", model.display()))?;
+        let blob =
+            std::fs::read(&model).map_err(|e| anyhow!("cannot read {}: {e}", model.display()))?;
+        let m =
+            phasegate::Model::from_bytes(&blob).map_err(|e| anyhow!("{}: {e}", model.display()))?;
         let x = npy::read_matrix_f32(inputs, m.input_dim())?;
         let run = eval::run_fixed(&blob, &x, &p)?;
         if let Some(raw) = raw_out {
@@ -137,7 +147,9 @@ fn eval_cmd(
         }
         npy::write_matrix(out, &run.outputs)
     } else {
-        let (Some(r), Some(g)) = (reference, gating) else { bail!("--reference needs --gating") };
+        let (Some(r), Some(g)) = (reference, gating) else {
+            bail!("--reference needs --gating")
+        };
         let net = load_reference(&r, g.into())?;
         let x = npy::read_matrix_f32(inputs, net.input_dim())?;
         npy::write_matrix(out, &eval::run_reference(&net, &x, &p)?)
@@ -146,11 +158,20 @@ fn eval_cmd(
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Eval { model, reference, gating, inputs, phases, out, raw_out } => {
-            eval_cmd(model, reference, gating, &inputs, &phases, &out, raw_out)
-        }
+        Command::Eval {
+            model,
+            reference,
+            gating,
+            inputs,
+            phases,
+            out,
+            raw_out,
+        } => eval_cmd(model, reference, gating, &inputs, &phases, &out, raw_out),
         Command::Compare { a, b, json } => {
-            let c = compare::compare(&npy::read_matrix_f32_any(&a)?, &npy::read_matrix_f32_any(&b)?)?;
+            let c = compare::compare(
+                &npy::read_matrix_f32_any(&a)?,
+                &npy::read_matrix_f32_any(&b)?,
+            )?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&c)?);
             } else {
@@ -166,17 +187,30 @@ fn run(cli: Cli) -> Result<()> {
                     "embedded default model (PFNN-shaped, hidden 32, int8 cubic)".to_string(),
                 ),
                 Some(dir) => {
-                    let tables = exporter::pfnn_dir::load_pfnn_dir(&dir)?;
+                    let tables = exporter::pfnn_dir::load_pfnn_dir_auto(&dir, None)?;
                     let (net, residual) = FloatPfnn::from_tables(&tables, GatingMode::Cubic);
-                    let (blob, _) = exporter::export::export_pfnn(&net, residual, &Default::default())?;
-                    (blob, net, format!("PFNN from {} (int8 cubic)", dir.display()))
+                    let (blob, _) =
+                        exporter::export::export_pfnn(&net, residual, &Default::default())?;
+                    (
+                        blob,
+                        net,
+                        format!("PFNN from {} (int8 cubic)", dir.display()),
+                    )
                 }
             };
-            print!("{}", demo::run_demo(&blob, &net, frames, 11)?.render(&title));
+            print!(
+                "{}",
+                demo::run_demo(&blob, &net, frames, 11)?.render(&title)
+            );
             Ok(())
         }
-        Command::Accuracy { pfnn, samples, seed, json } => {
-            let tables = exporter::pfnn_dir::load_pfnn_dir(&pfnn)?;
+        Command::Accuracy {
+            pfnn,
+            samples,
+            seed,
+            json,
+        } => {
+            let tables = exporter::pfnn_dir::load_pfnn_dir_auto(&pfnn, None)?;
             let a = accuracy::measure(&tables, samples, seed)?;
             print!("{}", a.table());
             println!(

@@ -34,7 +34,10 @@ fn read_any<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
     let npy = npyz::NpyFile::new(&bytes[..])
         .with_context(|| format!("{} is not a .npy file", path.display()))?;
     if npy.order() != npyz::Order::C {
-        bail!("{}: Fortran-ordered arrays are not supported; save with C order", path.display());
+        bail!(
+            "{}: Fortran-ordered arrays are not supported; save with C order",
+            path.display()
+        );
     }
     let shape = npy.shape().to_vec();
     let data = npy
@@ -47,8 +50,16 @@ fn read_any<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
 pub fn read_matrix_f32(path: &Path, cols: usize) -> Result<Matrix<f32>> {
     let (shape, data) = read_any::<f32>(path)?;
     match shape[..] {
-        [r, c] if c as usize == cols => Ok(Matrix { rows: r as usize, cols, data }),
-        _ => bail!("{}: shape {:?}, expected (N, {cols}) float32", path.display(), shape),
+        [r, c] if c as usize == cols => Ok(Matrix {
+            rows: r as usize,
+            cols,
+            data,
+        }),
+        _ => bail!(
+            "{}: shape {:?}, expected (N, {cols}) float32",
+            path.display(),
+            shape
+        ),
     }
 }
 
@@ -56,8 +67,16 @@ pub fn read_matrix_f32(path: &Path, cols: usize) -> Result<Matrix<f32>> {
 pub fn read_matrix_i16(path: &Path) -> Result<Matrix<i16>> {
     let (shape, data) = read_any::<i16>(path)?;
     match shape[..] {
-        [r, c] => Ok(Matrix { rows: r as usize, cols: c as usize, data }),
-        _ => bail!("{}: shape {:?}, expected (N, M) int16", path.display(), shape),
+        [r, c] => Ok(Matrix {
+            rows: r as usize,
+            cols: c as usize,
+            data,
+        }),
+        _ => bail!(
+            "{}: shape {:?}, expected (N, M) int16",
+            path.display(),
+            shape
+        ),
     }
 }
 
@@ -66,7 +85,11 @@ pub fn read_vector_f32(path: &Path) -> Result<Vec<f32>> {
     let (shape, data) = read_any::<f32>(path)?;
     match shape[..] {
         [_] => Ok(data),
-        _ => bail!("{}: shape {:?}, expected (N,) float32", path.display(), shape),
+        _ => bail!(
+            "{}: shape {:?}, expected (N,) float32",
+            path.display(),
+            shape
+        ),
     }
 }
 
@@ -74,12 +97,24 @@ pub fn read_vector_f32(path: &Path) -> Result<Vec<f32>> {
 pub fn read_matrix_f32_any(path: &Path) -> Result<Matrix<f32>> {
     let (shape, data) = read_any::<f32>(path)?;
     match shape[..] {
-        [r, c] => Ok(Matrix { rows: r as usize, cols: c as usize, data }),
-        _ => bail!("{}: shape {:?}, expected (N, M) float32", path.display(), shape),
+        [r, c] => Ok(Matrix {
+            rows: r as usize,
+            cols: c as usize,
+            data,
+        }),
+        _ => bail!(
+            "{}: shape {:?}, expected (N, M) float32",
+            path.display(),
+            shape
+        ),
     }
 }
 
-fn write_npy<T: npyz::Serialize + npyz::AutoSerialize + Copy>(path: &Path, shape: &[u64], data: &[T]) -> Result<()> {
+fn write_npy<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
+    path: &Path,
+    shape: &[u64],
+    data: &[T],
+) -> Result<()> {
     let mut bytes = Vec::new();
     {
         let mut w = npyz::WriteOptions::new()
@@ -94,12 +129,18 @@ fn write_npy<T: npyz::Serialize + npyz::AutoSerialize + Copy>(path: &Path, shape
 }
 
 /// Writes a matrix as `.npy`.
-pub fn write_matrix<T: npyz::Serialize + npyz::AutoSerialize + Copy>(path: &Path, m: &Matrix<T>) -> Result<()> {
+pub fn write_matrix<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
+    path: &Path,
+    m: &Matrix<T>,
+) -> Result<()> {
     write_npy(path, &[m.rows as u64, m.cols as u64], &m.data)
 }
 
 /// Writes a vector as `.npy`.
-pub fn write_vector<T: npyz::Serialize + npyz::AutoSerialize + Copy>(path: &Path, v: &[T]) -> Result<()> {
+pub fn write_vector<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
+    path: &Path,
+    v: &[T],
+) -> Result<()> {
     write_npy(path, &[v.len() as u64], v)
 }
 

@@ -39,8 +39,16 @@ impl<'a> Model<'a> {
     }
 
     fn load(bytes: &'a [u8], exact: bool) -> Result<Self> {
-        let Framed { header, payload, blob_len } = Framed::parse(bytes, exact)?;
-        let model = Model { header, payload, blob_len };
+        let Framed {
+            header,
+            payload,
+            blob_len,
+        } = Framed::parse(bytes, exact)?;
+        let model = Model {
+            header,
+            payload,
+            blob_len,
+        };
         model.validate()?;
         Ok(model)
     }
@@ -132,7 +140,9 @@ impl<'a> Model<'a> {
             width = l.out_dim;
         }
         if width != h.output_dim {
-            return Err(Error::DimensionMismatch { layer: (h.layers.len() - 1) as u8 });
+            return Err(Error::DimensionMismatch {
+                layer: (h.layers.len() - 1) as u8,
+            });
         }
         self.validate_stage(h.input_stage, h.input_dim)?;
         self.validate_stage(h.output_stage, h.output_dim)?;
@@ -151,7 +161,10 @@ impl<'a> Model<'a> {
         let experts = u64::from(l.experts);
         let (out, inp) = (u64::from(l.out_dim), u64::from(l.in_dim));
         let want = [
-            (l.weight_section, experts * out * inp * l.weights.bytes() as u64),
+            (
+                l.weight_section,
+                experts * out * inp * l.weights.bytes() as u64,
+            ),
             (l.bias_section, experts * out * l.acc.bytes() as u64),
             (l.requant_section, out * REQUANT_RECORD_LEN as u64),
         ];
@@ -180,11 +193,14 @@ impl<'a> Model<'a> {
     /// (activations are i16, so |x| <= 2^15 whatever the input).
     fn validate_layer_values(&self, i: usize) -> Result<()> {
         let li = i as u8;
-        let layer = self.layer(i).ok_or(Error::SectionOutOfBounds { layer: li })?;
+        let layer = self
+            .layer(i)
+            .ok_or(Error::SectionOutOfBounds { layer: li })?;
         for rec in layer.requant.as_chunks::<REQUANT_RECORD_LEN>().0 {
             let r = Requant::from_bytes(rec).ok_or(Error::UnsupportedParameter { layer: li })?;
             let elu_frac_bad = layer.desc.activation == Activation::Elu && r.frac > 15;
-            if r.pre_shift > Requant::MAX_SHIFT || r.post_shift > Requant::MAX_SHIFT || elu_frac_bad {
+            if r.pre_shift > Requant::MAX_SHIFT || r.post_shift > Requant::MAX_SHIFT || elu_frac_bad
+            {
                 return Err(Error::UnsupportedParameter { layer: li });
             }
         }
@@ -209,7 +225,10 @@ fn row_l1(layer: &DenseLayer<'_>, r: usize) -> Option<u64> {
     let rb = usize::from(layer.desc.in_dim) * wb;
     let row = layer.weights.get(r * rb..(r + 1) * rb)?;
     Some(match wb {
-        1 => row.iter().map(|&b| u64::from((b as i8).unsigned_abs())).sum(),
+        1 => row
+            .iter()
+            .map(|&b| u64::from((b as i8).unsigned_abs()))
+            .sum(),
         _ => row
             .as_chunks::<2>()
             .0
@@ -245,7 +264,11 @@ fn section(payload: &[u8], s: Section) -> Option<&[u8]> {
 
 fn stage(payload: &[u8], s: Section) -> impl Iterator<Item = (f32, f32)> + '_ {
     let bytes = section(payload, s).unwrap_or(&[]);
-    bytes.as_chunks::<STAGE_RECORD_LEN>().0.iter().map(stage_record)
+    bytes
+        .as_chunks::<STAGE_RECORD_LEN>()
+        .0
+        .iter()
+        .map(stage_record)
 }
 
 /// Widest activation vector of the network (input included).

@@ -25,9 +25,16 @@ impl<'a, const W: usize> Runtime<'a, W> {
     pub fn new(model: Model<'a>) -> Result<Self> {
         let needed = model.buffer_elements();
         if needed > W {
-            return Err(Error::BufferTooSmall { needed: needed as u32, capacity: W as u32 });
+            return Err(Error::BufferTooSmall {
+                needed: needed as u32,
+                capacity: W as u32,
+            });
         }
-        Ok(Runtime { model, a: [0; W], b: [0; W] })
+        Ok(Runtime {
+            model,
+            a: [0; W],
+            b: [0; W],
+        })
     }
 
     /// The model.
@@ -81,8 +88,15 @@ impl<'a, const W: usize> Runtime<'a, W> {
         let mut src = &mut self.a;
         let mut dst = &mut self.b;
         for i in 0..self.model.layer_count() {
-            let layer = self.model.layer(i).ok_or(Error::SectionOutOfBounds { layer: i as u8 })?;
-            let g = if layer.desc.gated { gate } else { crate::fixed::gate::Gate::SINGLE };
+            let layer = self
+                .model
+                .layer(i)
+                .ok_or(Error::SectionOutOfBounds { layer: i as u8 })?;
+            let g = if layer.desc.gated {
+                gate
+            } else {
+                crate::fixed::gate::Gate::SINGLE
+            };
             layer.run(&g, &src[..], &mut dst[..])?;
             core::mem::swap(&mut src, &mut dst);
         }
@@ -95,12 +109,18 @@ fn check_len(expected: usize, found: usize) -> Result<()> {
     if expected == found {
         Ok(())
     } else {
-        Err(Error::LengthMismatch { expected: expected as u32, found: found as u32 })
+        Err(Error::LengthMismatch {
+            expected: expected as u32,
+            found: found as u32,
+        })
     }
 }
 
 fn buffer_error(needed: usize, capacity: usize) -> Error {
-    Error::BufferTooSmall { needed: needed as u32, capacity: capacity as u32 }
+    Error::BufferTooSmall {
+        needed: needed as u32,
+        capacity: capacity as u32,
+    }
 }
 
 /// Round half away from zero in IEEE f32 arithmetic; saturates; NaN is
@@ -114,8 +134,15 @@ fn round_to_i16(v: f32) -> i16 {
 fn quantise_into(model: &Model<'_>, input: &[f32], out: &mut [i16]) -> Result<()> {
     check_len(model.input_dim(), input.len())?;
     let capacity = out.len();
-    let out = out.get_mut(..input.len()).ok_or(buffer_error(input.len(), capacity))?;
-    for (i, ((o, &x), (offset, scale))) in out.iter_mut().zip(input).zip(model.input_stage()).enumerate() {
+    let out = out
+        .get_mut(..input.len())
+        .ok_or(buffer_error(input.len(), capacity))?;
+    for (i, ((o, &x), (offset, scale))) in out
+        .iter_mut()
+        .zip(input)
+        .zip(model.input_stage())
+        .enumerate()
+    {
         if !x.is_finite() {
             return Err(Error::NonFinite { index: i as u32 });
         }

@@ -43,10 +43,15 @@ pub struct BuildOutput {
 /// error: see [`BuildOutput::success`].
 pub fn cargo_build(features: &[&str], target_dir: Option<&Path>) -> Result<BuildOutput> {
     let dir = firmware_dir();
-    let target_dir = target_dir.map(Path::to_path_buf).unwrap_or_else(|| dir.join("target"));
+    let target_dir = target_dir
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| dir.join("target"));
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let mut cmd = Command::new(cargo);
-    cmd.current_dir(&dir).args(["build", "--release", "--quiet", "--target", TARGET]).arg("--target-dir").arg(&target_dir);
+    cmd.current_dir(&dir)
+        .args(["build", "--release", "--quiet", "--target", TARGET])
+        .arg("--target-dir")
+        .arg(&target_dir);
     if !features.is_empty() {
         cmd.arg("--features").arg(features.join(","));
     }
@@ -64,7 +69,9 @@ pub fn cargo_build(features: &[&str], target_dir: Option<&Path>) -> Result<Build
     ] {
         cmd.env_remove(var);
     }
-    let out = cmd.output().with_context(|| format!("cannot run cargo in {}", dir.display()))?;
+    let out = cmd
+        .output()
+        .with_context(|| format!("cannot run cargo in {}", dir.display()))?;
     Ok(BuildOutput {
         success: out.status.success(),
         stderr: String::from_utf8_lossy(&out.stderr).into_owned(),

@@ -23,8 +23,10 @@ pub struct ElfInfo {
 impl ElfInfo {
     /// Reads `path`.
     pub fn read(path: &Path) -> Result<ElfInfo> {
-        let bytes = std::fs::read(path).with_context(|| format!("cannot read firmware {}", path.display()))?;
-        let file = object::File::parse(&*bytes).with_context(|| format!("{} is not an ELF file", path.display()))?;
+        let bytes = std::fs::read(path)
+            .with_context(|| format!("cannot read firmware {}", path.display()))?;
+        let file = object::File::parse(&*bytes)
+            .with_context(|| format!("{} is not an ELF file", path.display()))?;
         let mut sections = BTreeMap::new();
         for s in file.sections() {
             if let Ok(name) = s.name() {
@@ -37,11 +39,27 @@ impl ElfInfo {
             file.symbols()
                 .find(|s| s.name() == Ok(name))
                 .map(|s| s.address())
-                .ok_or_else(|| anyhow!("{}: symbol {name} missing (is memory.x the phasegate one?)", path.display()))
+                .ok_or_else(|| {
+                    anyhow!(
+                        "{}: symbol {name} missing (is memory.x the phasegate one?)",
+                        path.display()
+                    )
+                })
         };
-        let model = (symbol("_phasegate_model_start")?, symbol("_phasegate_model_end")?);
-        let hostio = (symbol("_phasegate_hostio_start")?, symbol("_phasegate_hostio_end")?);
-        Ok(ElfInfo { sections, model, hostio, bytes })
+        let model = (
+            symbol("_phasegate_model_start")?,
+            symbol("_phasegate_model_end")?,
+        );
+        let hostio = (
+            symbol("_phasegate_hostio_start")?,
+            symbol("_phasegate_hostio_end")?,
+        );
+        Ok(ElfInfo {
+            sections,
+            model,
+            hostio,
+            bytes,
+        })
     }
 
     /// Size of a section, 0 when absent.

@@ -76,9 +76,12 @@ impl Frames {
 /// Reads an `.npy` array of `T`; returns its shape and data.
 pub fn read_npy<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let npy = npyz::NpyFile::new(&bytes[..]).with_context(|| format!("{} is not an .npy file", path.display()))?;
+    let npy = npyz::NpyFile::new(&bytes[..])
+        .with_context(|| format!("{} is not an .npy file", path.display()))?;
     let shape = npy.shape().to_vec();
-    let data = npy.into_vec::<T>().with_context(|| format!("{}: wrong element type", path.display()))?;
+    let data = npy
+        .into_vec::<T>()
+        .with_context(|| format!("{}: wrong element type", path.display()))?;
     Ok((shape, data))
 }
 
@@ -108,7 +111,10 @@ pub fn from_npy(inputs: &Path, phases: &Path, input_dim: usize) -> Result<Frames
 
 /// The golden vectors' folder of the embedded default model.
 pub fn golden_dir() -> PathBuf {
-    super::build::repo_root().join("tests").join("golden").join("default")
+    super::build::repo_root()
+        .join("tests")
+        .join("golden")
+        .join("default")
 }
 
 /// The golden vectors, when `blob` is the embedded default model's blob.
@@ -162,7 +168,11 @@ pub fn generated(n: usize, input_stage: &[(f32, f32)], seed: u64) -> Frames {
         phases.push((rng.unit() * std::f64::consts::TAU) as f32);
         for &(offset, scale) in input_stage {
             let u = (rng.unit() * 2.0 - 1.0) * 8192.0;
-            let x = if scale != 0.0 && scale.is_finite() { offset as f64 + u / scale as f64 } else { offset as f64 };
+            let x = if scale != 0.0 && scale.is_finite() {
+                offset as f64 + u / scale as f64
+            } else {
+                offset as f64
+            };
             inputs.push(x as f32);
         }
     }
@@ -171,7 +181,9 @@ pub fn generated(n: usize, input_stage: &[(f32, f32)], seed: u64) -> Frames {
         inputs,
         input_dim,
         expected_q: None,
-        source: format!("{n} generated frames (seed {seed:#x}, a quarter of each input's quantised range)"),
+        source: format!(
+            "{n} generated frames (seed {seed:#x}, a quarter of each input's quantised range)"
+        ),
     }
 }
 
@@ -192,13 +204,22 @@ pub fn select(
             Some(g) => g,
             None => {
                 let stage: Vec<(f32, f32)> = model.input_stage().collect();
-                generated(frames.unwrap_or(DEFAULT_GENERATED_FRAMES), &stage, 0x5EED_F00D)
+                generated(
+                    frames.unwrap_or(DEFAULT_GENERATED_FRAMES),
+                    &stage,
+                    0x5EED_F00D,
+                )
             }
         },
         _ => bail!("--inputs and --phases go together"),
     };
     if let Some(n) = frames {
-        ensure!(n <= f.len(), "--frames {n}: only {} frames in {}", f.len(), f.source);
+        ensure!(
+            n <= f.len(),
+            "--frames {n}: only {} frames in {}",
+            f.len(),
+            f.source
+        );
         f.truncate(n, output_dim);
     }
     ensure!(!f.is_empty(), "no frames to run");

@@ -17,12 +17,18 @@ pub fn decode(elf: &[u8], stream: &[u8]) -> Result<Vec<String>> {
     loop {
         match decoder.decode() {
             Ok(frame) => {
-                let level = frame.level().map(|l| l.as_str().to_uppercase()).unwrap_or_else(|| "PRINT".into());
+                let level = frame
+                    .level()
+                    .map(|l| l.as_str().to_uppercase())
+                    .unwrap_or_else(|| "PRINT".into());
                 lines.push(format!("{level:<5} {}", frame.display_message()));
             }
             Err(DecodeError::UnexpectedEof) => break,
             Err(DecodeError::Malformed) => {
-                lines.push("(malformed defmt frame: the stream is damaged or the ELF does not match)".into());
+                lines.push(
+                    "(malformed defmt frame: the stream is damaged or the ELF does not match)"
+                        .into(),
+                );
                 malformed += 1;
                 if table.encoding().can_recover() && malformed < 16 {
                     continue;

@@ -13,11 +13,11 @@
 //!   (`wire.rs`, shared with the firmware), and exits through semihosting
 //!   with a code from `wire::exit`.
 
-mod build;
-mod elf;
-mod frames;
-mod log;
-mod qemu;
+pub mod build;
+pub mod elf;
+pub mod frames;
+pub mod log;
+pub mod qemu;
 pub mod snapshot;
 #[cfg(test)]
 mod tests;
@@ -77,7 +77,11 @@ impl Stats {
         let mut v = values.to_vec();
         v.sort_unstable();
         match (v.first(), v.last()) {
-            (Some(&min), Some(&max)) => Stats { min, median: v[(v.len() - 1) / 2], max },
+            (Some(&min), Some(&max)) => Stats {
+                min,
+                median: v[(v.len() - 1) / 2],
+                max,
+            },
             _ => Stats::default(),
         }
     }
@@ -219,7 +223,10 @@ impl TargetReport {
             ));
         }
         if self.flash.text > TEXT_BUDGET {
-            failures.push(format!(".text = {} B exceeds the {} B budget", self.flash.text, TEXT_BUDGET));
+            failures.push(format!(
+                ".text = {} B exceeds the {} B budget",
+                self.flash.text, TEXT_BUDGET
+            ));
         }
         if failures.is_empty() {
             Ok(())
@@ -267,10 +274,16 @@ impl TargetReport {
         }
         match self.golden_mismatches {
             Some(0) => {
-                let _ = writeln!(s, "golden: the host runtime matches expected_q.npy bit for bit");
+                let _ = writeln!(
+                    s,
+                    "golden: the host runtime matches expected_q.npy bit for bit"
+                );
             }
             Some(n) => {
-                let _ = writeln!(s, "golden: MISMATCH: {n} host outputs differ from expected_q.npy");
+                let _ = writeln!(
+                    s,
+                    "golden: MISMATCH: {n} host outputs differ from expected_q.npy"
+                );
             }
             None => {}
         }
@@ -358,7 +371,10 @@ pub fn run_target(args: &TargetArgs) -> Result<TargetReport> {
 /// allows 10 per MAC at 5 million per second), overridable with
 /// `PHASEGATE_QEMU_TIMEOUT` (seconds).
 fn time_limit(frames: usize, macs: u32) -> Duration {
-    if let Some(secs) = std::env::var("PHASEGATE_QEMU_TIMEOUT").ok().and_then(|v| v.parse::<u64>().ok()) {
+    if let Some(secs) = std::env::var("PHASEGATE_QEMU_TIMEOUT")
+        .ok()
+        .and_then(|v| v.parse::<u64>().ok())
+    {
         return Duration::from_secs(secs);
     }
     let instructions = frames as f64 * (f64::from(macs) * 10.0 + 200_000.0) + 50e6;
@@ -375,18 +391,32 @@ pub struct Booted {
 
 /// Boots the firmware `elf` with `blob` (if any) at MODEL and `image` (if
 /// any) at HOSTIO; decodes the log. Does not judge the exit code.
-pub fn boot(elf: &ElfInfo, elf_path: &Path, blob: Option<&Path>, image: Option<&[u8]>, timeout: Duration) -> Result<Booted> {
-    let scratch = tempfile::Builder::new().prefix("phasegate-io-").tempdir().context("cannot create a temporary directory")?;
+pub fn boot(
+    elf: &ElfInfo,
+    elf_path: &Path,
+    blob: Option<&Path>,
+    image: Option<&[u8]>,
+    timeout: Duration,
+) -> Result<Booted> {
+    let scratch = tempfile::Builder::new()
+        .prefix("phasegate-io-")
+        .tempdir()
+        .context("cannot create a temporary directory")?;
     let mut loads = Vec::new();
     if let Some(b) = blob {
-        let len = std::fs::metadata(b).with_context(|| format!("cannot read {}", b.display()))?.len();
+        let len = std::fs::metadata(b)
+            .with_context(|| format!("cannot read {}", b.display()))?
+            .len();
         let room = elf.model.1 - elf.model.0;
         ensure!(
             len <= room,
             "{} is {len} bytes, the MODEL region (memory.x) holds {room} bytes",
             b.display()
         );
-        loads.push(qemu::Load { file: b.to_path_buf(), addr: elf.model.0 });
+        loads.push(qemu::Load {
+            file: b.to_path_buf(),
+            addr: elf.model.0,
+        });
     }
     if let Some(img) = image {
         let room = elf.hostio.1 - elf.hostio.0;
@@ -397,7 +427,10 @@ pub fn boot(elf: &ElfInfo, elf_path: &Path, blob: Option<&Path>, image: Option<&
         );
         let path = scratch.path().join("inputs.bin");
         std::fs::write(&path, img).context("cannot write the input image")?;
-        loads.push(qemu::Load { file: path, addr: elf.hostio.0 });
+        loads.push(qemu::Load {
+            file: path,
+            addr: elf.hostio.0,
+        });
     }
     let run = qemu::run(elf_path, &loads, timeout)?;
     let log = log::decode(&elf.bytes, &run.stdout)?;
@@ -407,14 +440,20 @@ pub fn boot(elf: &ElfInfo, elf_path: &Path, blob: Option<&Path>, image: Option<&
 /// Host reference outputs: (i16, f32) per frame, flattened.
 fn host_outputs(model: Model<'_>, frames: &Frames) -> Result<(Vec<i16>, Vec<f32>)> {
     let out_dim = model.output_dim();
-    let mut rt = Box::new(Runtime::<'_, HOST_W>::new(model).context("the host runtime refuses the model")?);
+    let mut rt =
+        Box::new(Runtime::<'_, HOST_W>::new(model).context("the host runtime refuses the model")?);
     let mut q_in = vec![0i16; frames.input_dim];
     let mut qs = Vec::with_capacity(frames.len() * out_dim);
     let mut fs = vec![0f32; frames.len() * out_dim];
     for i in 0..frames.len() {
-        let phase = Phase::from_radians(frames.phases[i]).with_context(|| format!("frame {i}: phase"))?;
-        rt.quantise_input(frames.input(i), &mut q_in).with_context(|| format!("frame {i}: inputs"))?;
-        let q = rt.run_quantised(phase, &q_in).with_context(|| format!("frame {i}"))?.to_vec();
+        let phase =
+            Phase::from_radians(frames.phases[i]).with_context(|| format!("frame {i}: phase"))?;
+        rt.quantise_input(frames.input(i), &mut q_in)
+            .with_context(|| format!("frame {i}: inputs"))?;
+        let q = rt
+            .run_quantised(phase, &q_in)
+            .with_context(|| format!("frame {i}"))?
+            .to_vec();
         rt.dequantise_output(&q, &mut fs[i * out_dim..(i + 1) * out_dim])?;
         qs.extend_from_slice(&q);
     }
@@ -430,8 +469,14 @@ struct TargetOutputs {
     trailer: wire::Trailer,
 }
 
-fn parse_outputs(file: &[u8], frames: usize, output_dim: usize, input_crc: u32) -> Result<TargetOutputs> {
-    let h = wire::OutputHeader::parse(file).map_err(|e| anyhow::anyhow!("firmware output file: {e}"))?;
+fn parse_outputs(
+    file: &[u8],
+    frames: usize,
+    output_dim: usize,
+    input_crc: u32,
+) -> Result<TargetOutputs> {
+    let h = wire::OutputHeader::parse(file)
+        .map_err(|e| anyhow::anyhow!("firmware output file: {e}"))?;
     ensure!(
         h.frames as usize == frames && h.output_dim as usize == output_dim && h.input_crc == input_crc,
         "firmware output file is for {} frames x {} outputs (input CRC {:#x}), expected {frames} x {output_dim} ({input_crc:#x})",
@@ -462,7 +507,8 @@ fn parse_outputs(file: &[u8], frames: usize, output_dim: usize, input_crc: u32) 
         out.infer_ticks.push(u64::from(head.infer_ticks));
         out.frame_ticks.push(u64::from(head.frame_ticks));
     }
-    out.trailer = wire::Trailer::parse(&body[frames * rl..]).map_err(|e| anyhow::anyhow!("firmware output trailer: {e}"))?;
+    out.trailer = wire::Trailer::parse(&body[frames * rl..])
+        .map_err(|e| anyhow::anyhow!("firmware output trailer: {e}"))?;
     ensure!(
         out.trailer.frames_done as usize == frames,
         "the firmware reports {} frames done, expected {frames}",
@@ -491,25 +537,43 @@ fn memory_use(elf: &ElfInfo, trailer: &wire::Trailer) -> (FlashUse, RamUse) {
 
 /// Does the work of [`run_target`] without printing or judging the result.
 pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
-    let blob = std::fs::read(&args.model).with_context(|| format!("cannot read the model blob {}", args.model.display()))?;
-    let model = Model::from_bytes(&blob).with_context(|| format!("{} is not a valid model blob", args.model.display()))?;
-    let frames = frames::select(args.inputs.as_deref(), args.phases.as_deref(), args.frames, &blob, &model)?;
+    let blob = std::fs::read(&args.model)
+        .with_context(|| format!("cannot read the model blob {}", args.model.display()))?;
+    let model = Model::from_bytes(&blob)
+        .with_context(|| format!("{} is not a valid model blob", args.model.display()))?;
+    let frames = frames::select(
+        args.inputs.as_deref(),
+        args.phases.as_deref(),
+        args.frames,
+        &blob,
+        &model,
+    )?;
     let output_dim = model.output_dim();
     let macs = model.macs_per_frame();
     let model_ram_bytes = model.ram_bytes();
     let (host_q, host_f) = host_outputs(model, &frames)?;
-    let golden_mismatches = frames
-        .expected_q
-        .as_ref()
-        .map(|e| e.iter().zip(&host_q).filter(|(a, b)| a != b).count() + e.len().abs_diff(host_q.len()));
+    let golden_mismatches = frames.expected_q.as_ref().map(|e| {
+        e.iter().zip(&host_q).filter(|(a, b)| a != b).count() + e.len().abs_diff(host_q.len())
+    });
 
-    eprintln!("building the firmware (cargo build --release in {}) ...", firmware_dir().display());
+    eprintln!(
+        "building the firmware (cargo build --release in {}) ...",
+        firmware_dir().display()
+    );
     let elf_path = build_firmware()?;
     let elf = ElfInfo::read(&elf_path)?;
     let image = frames.image(output_dim);
-    let input_crc = wire::InputHeader::parse(&image).map(|(h, _)| h.crc).unwrap_or(0);
+    let input_crc = wire::InputHeader::parse(&image)
+        .map(|(h, _)| h.crc)
+        .unwrap_or(0);
     eprintln!("running {} frames under QEMU ...", frames.len());
-    let booted = boot(&elf, &elf_path, Some(&args.model), Some(&image), time_limit(frames.len(), macs))?;
+    let booted = boot(
+        &elf,
+        &elf_path,
+        Some(&args.model),
+        Some(&image),
+        time_limit(frames.len(), macs),
+    )?;
     if booted.run.exit_code != wire::exit::OK {
         let mut msg = format!(
             "the firmware exited with code {} ({})",
@@ -526,7 +590,11 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         }
         bail!(msg);
     }
-    let file = booted.run.output_file.as_deref().context("the firmware wrote no output file")?;
+    let file = booted
+        .run
+        .output_file
+        .as_deref()
+        .context("the firmware wrote no output file")?;
     let out = parse_outputs(file, frames.len(), output_dim, input_crc)?;
     let t = out.trailer;
     ensure!(
@@ -540,7 +608,12 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
 
     let mut mismatches = 0;
     let mut first_mismatches = Vec::new();
-    for (k, ((&hq, &tq), (&hf, &tf))) in host_q.iter().zip(&out.q).zip(host_f.iter().zip(&out.f)).enumerate() {
+    for (k, ((&hq, &tq), (&hf, &tf))) in host_q
+        .iter()
+        .zip(&out.q)
+        .zip(host_f.iter().zip(&out.f))
+        .enumerate()
+    {
         if hq != tq || hf.to_bits() != tf.to_bits() {
             mismatches += 1;
             if first_mismatches.len() < 10 {
@@ -555,7 +628,11 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
             }
         }
     }
-    let ticks_to_instr = |v: &[u64]| v.iter().map(|t| t * INSTRUCTIONS_PER_TICK).collect::<Vec<_>>();
+    let ticks_to_instr = |v: &[u64]| {
+        v.iter()
+            .map(|t| t * INSTRUCTIONS_PER_TICK)
+            .collect::<Vec<_>>()
+    };
     let (flash, ram) = memory_use(&elf, &t);
     Ok(TargetReport {
         model: args.model.clone(),

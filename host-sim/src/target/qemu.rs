@@ -14,7 +14,9 @@ use super::wire;
 
 /// The QEMU binary: `PHASEGATE_QEMU`, else `qemu-system-arm` on the PATH.
 pub fn qemu_binary() -> PathBuf {
-    std::env::var_os("PHASEGATE_QEMU").map(PathBuf::from).unwrap_or_else(|| "qemu-system-arm".into())
+    std::env::var_os("PHASEGATE_QEMU")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| "qemu-system-arm".into())
 }
 
 /// Whether the QEMU binary runs at all.
@@ -59,11 +61,22 @@ fn qemu_escape(p: &Path) -> String {
 
 /// Boots `elf` with `loads`, waits at most `timeout`.
 pub fn run(elf: &Path, loads: &[Load], timeout: Duration) -> Result<QemuRun> {
-    let dir = tempfile::Builder::new().prefix("phasegate-qemu-").tempdir().context("cannot create a temporary directory")?;
+    let dir = tempfile::Builder::new()
+        .prefix("phasegate-qemu-")
+        .tempdir()
+        .context("cannot create a temporary directory")?;
     let mut cmd = Command::new(qemu_binary());
     cmd.current_dir(dir.path())
         .args(["-machine", "mps2-an386", "-cpu", "cortex-m4"])
-        .args(["-display", "none", "-monitor", "none", "-serial", "none", "-nodefaults"])
+        .args([
+            "-display",
+            "none",
+            "-monitor",
+            "none",
+            "-serial",
+            "none",
+            "-nodefaults",
+        ])
         // Virtual time advances 1 ns per instruction (2^0): with the 25 MHz
         // SysTick, one tick is 40 instructions.
         .args(["-icount", "shift=0"])
@@ -72,12 +85,21 @@ pub fn run(elf: &Path, loads: &[Load], timeout: Duration) -> Result<QemuRun> {
         .arg(elf);
     for l in loads {
         let file = std::path::absolute(&l.file).unwrap_or_else(|_| l.file.clone());
-        cmd.arg("-device").arg(format!("loader,file={},addr={:#x},force-raw=on", qemu_escape(&file), l.addr));
+        cmd.arg("-device").arg(format!(
+            "loader,file={},addr={:#x},force-raw=on",
+            qemu_escape(&file),
+            l.addr
+        ));
     }
-    cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped());
+    cmd.stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
     let start = Instant::now();
     let mut child = cmd.spawn().with_context(|| {
-        format!("cannot start {} (install QEMU: apt-get install qemu-system-arm)", qemu_binary().display())
+        format!(
+            "cannot start {} (install QEMU: apt-get install qemu-system-arm)",
+            qemu_binary().display()
+        )
     })?;
     let mut stdout_pipe = child.stdout.take().context("no stdout pipe")?;
     let mut stderr_pipe = child.stderr.take().context("no stderr pipe")?;
@@ -111,8 +133,17 @@ pub fn run(elf: &Path, loads: &[Load], timeout: Duration) -> Result<QemuRun> {
     let stdout = out_reader.join().unwrap_or_default();
     let stderr = String::from_utf8_lossy(&err_reader.join().unwrap_or_default()).into_owned();
     let Some(exit_code) = status.code() else {
-        bail!("QEMU was killed by a signal ({status}); stderr: {}", stderr.trim());
+        bail!(
+            "QEMU was killed by a signal ({status}); stderr: {}",
+            stderr.trim()
+        );
     };
     let output_file = std::fs::read(dir.path().join(wire::OUTPUT_FILE)).ok();
-    Ok(QemuRun { exit_code, stdout, stderr, output_file, wall })
+    Ok(QemuRun {
+        exit_code,
+        stdout,
+        stderr,
+        output_file,
+        wall,
+    })
 }

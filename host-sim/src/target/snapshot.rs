@@ -34,10 +34,26 @@ struct Scenario {
 }
 
 const SCENARIOS: &[Scenario] = &[
-    Scenario { name: "golden-default", blob: Blob::Default, golden_inputs: true },
-    Scenario { name: "model-only", blob: Blob::Default, golden_inputs: false },
-    Scenario { name: "no-model", blob: Blob::None, golden_inputs: false },
-    Scenario { name: "corrupt-model", blob: Blob::CorruptPayload, golden_inputs: false },
+    Scenario {
+        name: "golden-default",
+        blob: Blob::Default,
+        golden_inputs: true,
+    },
+    Scenario {
+        name: "model-only",
+        blob: Blob::Default,
+        golden_inputs: false,
+    },
+    Scenario {
+        name: "no-model",
+        blob: Blob::None,
+        golden_inputs: false,
+    },
+    Scenario {
+        name: "corrupt-model",
+        blob: Blob::CorruptPayload,
+        golden_inputs: false,
+    },
 ];
 
 /// Directory of the expected logs.
@@ -91,7 +107,8 @@ pub enum Outcome {
 pub fn run_snapshots(overwrite: bool) -> Result<Vec<(&'static str, Outcome)>> {
     let golden = frames::golden_dir();
     let blob_path = golden.join("model.blob");
-    let blob = std::fs::read(&blob_path).with_context(|| format!("cannot read {}", blob_path.display()))?;
+    let blob = std::fs::read(&blob_path)
+        .with_context(|| format!("cannot read {}", blob_path.display()))?;
     let model = phasegate::Model::from_bytes(&blob).context("the default blob")?;
     let image = frames::golden_for(&blob, model.input_dim(), model.output_dim())?
         .context("no golden vectors for the default blob")?
@@ -121,11 +138,15 @@ pub fn run_snapshots(overwrite: bool) -> Result<Vec<(&'static str, Outcome)>> {
         let outcome = match std::fs::read_to_string(&path) {
             Ok(expected) if expected == actual => Outcome::Same,
             Ok(_) | Err(_) if overwrite => {
-                std::fs::write(&path, &actual).with_context(|| format!("cannot write {}", path.display()))?;
+                std::fs::write(&path, &actual)
+                    .with_context(|| format!("cannot write {}", path.display()))?;
                 Outcome::Written
             }
             Ok(expected) => Outcome::Differs(diff(&expected, &actual)),
-            Err(_) => Outcome::Differs(format!("  no snapshot {} yet; actual:\n{actual}", path.display())),
+            Err(_) => Outcome::Differs(format!(
+                "  no snapshot {} yet; actual:\n{actual}",
+                path.display()
+            )),
         };
         results.push((s.name, outcome));
     }

@@ -24,7 +24,10 @@ fn golden_or_skip(test: &str) -> Option<PathBuf> {
     if blob.exists() {
         Some(blob)
     } else {
-        println!("SKIPPED {test}: no golden vectors at {}", frames::golden_dir().display());
+        println!(
+            "SKIPPED {test}: no golden vectors at {}",
+            frames::golden_dir().display()
+        );
         None
     }
 }
@@ -55,17 +58,32 @@ fn input_image_round_trips_and_rejects_damage() {
     region.resize(image.len() + 100, 0);
     assert!(wire::InputHeader::parse(&region).is_ok());
     // Damage.
-    assert_eq!(wire::InputHeader::parse(&[0u8; 64]), Err(wire::WireError::BadMagic));
-    assert!(matches!(wire::InputHeader::parse(&image[..image.len() - 1]), Err(wire::WireError::Truncated { .. })));
+    assert_eq!(
+        wire::InputHeader::parse(&[0u8; 64]),
+        Err(wire::WireError::BadMagic)
+    );
+    assert!(matches!(
+        wire::InputHeader::parse(&image[..image.len() - 1]),
+        Err(wire::WireError::Truncated { .. })
+    ));
     let mut bad = image.clone();
     *bad.last_mut().unwrap() ^= 1;
-    assert_eq!(wire::InputHeader::parse(&bad), Err(wire::WireError::CrcMismatch));
+    assert_eq!(
+        wire::InputHeader::parse(&bad),
+        Err(wire::WireError::CrcMismatch)
+    );
     let mut bad = image.clone();
     bad[4] = 9;
-    assert_eq!(wire::InputHeader::parse(&bad), Err(wire::WireError::UnsupportedVersion(9)));
+    assert_eq!(
+        wire::InputHeader::parse(&bad),
+        Err(wire::WireError::UnsupportedVersion(9))
+    );
     let mut bad = image;
     bad[20] ^= 4;
-    assert_eq!(wire::InputHeader::parse(&bad), Err(wire::WireError::BadHeader));
+    assert_eq!(
+        wire::InputHeader::parse(&bad),
+        Err(wire::WireError::BadHeader)
+    );
 }
 
 #[test]
@@ -73,23 +91,50 @@ fn output_records_round_trip() {
     let q = [1i16, -2, i16::MIN, i16::MAX];
     let f = [0.5f32, -0.0, f32::MIN_POSITIVE, 1e30];
     let mut buf = vec![0u8; 8 + 6 * q.len()];
-    let head = wire::RecordHead { infer_ticks: 12345, frame_ticks: 23456 };
+    let head = wire::RecordHead {
+        infer_ticks: 12345,
+        frame_ticks: 23456,
+    };
     wire::encode_record(head, &q, &f, &mut buf).unwrap();
     let (mut q2, mut f2) = ([0i16; 4], [0f32; 4]);
     assert_eq!(wire::decode_record(&buf, &mut q2, &mut f2), Some(head));
     assert_eq!(q2, q);
     assert_eq!(f2.map(f32::to_bits), f.map(f32::to_bits));
     assert!(wire::encode_record(head, &q, &f, &mut buf[1..]).is_none());
-    let t = wire::Trailer { frames_done: 3, stack_high_water: 1000, stack_size: 2000, calib_ticks: 1000, calib_instructions: 40000 };
+    let t = wire::Trailer {
+        frames_done: 3,
+        stack_high_water: 1000,
+        stack_size: 2000,
+        calib_ticks: 1000,
+        calib_instructions: 40000,
+    };
     assert_eq!(wire::Trailer::parse(&t.encode()), Ok(t));
-    let h = wire::OutputHeader { frames: 3, output_dim: 4, input_crc: 0xDEAD_BEEF };
+    let h = wire::OutputHeader {
+        frames: 3,
+        output_dim: 4,
+        input_crc: 0xDEAD_BEEF,
+    };
     assert_eq!(wire::OutputHeader::parse(&h.encode()), Ok(h));
 }
 
 #[test]
 fn stats_are_min_median_max() {
-    assert_eq!(Stats::of(&[5, 1, 3]), Stats { min: 1, median: 3, max: 5 });
-    assert_eq!(Stats::of(&[4, 1, 3, 2]), Stats { min: 1, median: 2, max: 4 });
+    assert_eq!(
+        Stats::of(&[5, 1, 3]),
+        Stats {
+            min: 1,
+            median: 3,
+            max: 5
+        }
+    );
+    assert_eq!(
+        Stats::of(&[4, 1, 3, 2]),
+        Stats {
+            min: 1,
+            median: 2,
+            max: 4
+        }
+    );
     assert_eq!(Stats::of(&[]), Stats::default());
 }
 
@@ -110,14 +155,25 @@ fn budgets_bite() {
         macs_per_frame: 1,
         model_ram_bytes: 0,
         calibration: (1000, 40000),
-        flash: FlashUse { text: TEXT_BUDGET, ..FlashUse::default() },
-        ram: RamUse { bss: RAM_BUDGET - 100, stack_high_water: 100, ..RamUse::default() },
+        flash: FlashUse {
+            text: TEXT_BUDGET,
+            ..FlashUse::default()
+        },
+        ram: RamUse {
+            bss: RAM_BUDGET - 100,
+            stack_high_water: 100,
+            ..RamUse::default()
+        },
         log: vec![],
         wall: Duration::ZERO,
     };
     assert!(r.check_budgets().is_ok());
     r.ram.stack_high_water += 4;
-    assert!(r.check_budgets().unwrap_err().to_string().contains("static RAM + stack"));
+    assert!(r
+        .check_budgets()
+        .unwrap_err()
+        .to_string()
+        .contains("static RAM + stack"));
     r.ram.stack_high_water -= 4;
     r.flash.text += 1;
     assert!(r.check_budgets().unwrap_err().to_string().contains(".text"));
@@ -129,10 +185,14 @@ fn budgets_bite() {
 /// `width -> out`, tiny weights so the 32-bit accumulator proof holds.
 fn synthetic_blob(input_dim: usize, width: usize, output_dim: usize, seed: u64) -> Vec<u8> {
     use exporter::blob_writer::{encode, BlobLayer, BlobModel};
-    use phasegate::blob::{AccWidth, Activation, Gating, LayerDesc, LayerOp, ModelKind, Requant, Section, WeightFormat};
+    use phasegate::blob::{
+        AccWidth, Activation, Gating, LayerDesc, LayerOp, ModelKind, Requant, Section, WeightFormat,
+    };
     let mut s = seed;
     let mut next = move || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((s >> 33) % 7) as i32 - 3
     };
     let mut layer = |i: usize, o: usize| BlobLayer {
@@ -143,8 +203,6 @@ fn synthetic_blob(input_dim: usize, width: usize, output_dim: usize, seed: u64) 
             experts: 1,
             weights: WeightFormat::I8,
             acc: AccWidth::I32,
-            in_frac: 8,
-            out_frac: 8,
             activation: Activation::Identity,
             gated: false,
             weight_section: Section::default(),
@@ -153,7 +211,15 @@ fn synthetic_blob(input_dim: usize, width: usize, output_dim: usize, seed: u64) 
         },
         weights: (0..i * o).map(|_| next()).collect(),
         bias: (0..o).map(|_| i64::from(next()) * 100).collect(),
-        requant: vec![Requant { multiplier: 1 << 14, pre_shift: 0, post_shift: 20 }; o],
+        requant: vec![
+            Requant {
+                multiplier: 1 << 14,
+                pre_shift: 0,
+                post_shift: 20,
+                frac: 8
+            };
+            o
+        ],
     };
     let layers = vec![layer(input_dim, width), layer(width, output_dim)];
     let m = BlobModel {
@@ -183,7 +249,12 @@ fn firmware_is_bit_exact_on_a_synthetic_model_and_within_budgets() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("synthetic.blob");
     std::fs::write(&path, synthetic_blob(24, 64, 9, 3)).unwrap();
-    let report = execute(&TargetArgs { model: path, frames: Some(5), ..TargetArgs::default() }).unwrap();
+    let report = execute(&TargetArgs {
+        model: path,
+        frames: Some(5),
+        ..TargetArgs::default()
+    })
+    .unwrap();
     println!("{}", report.render());
     assert!(report.bit_exact(), "{}", report.render());
     assert_eq!(report.frames, 5);
@@ -197,8 +268,14 @@ fn firmware_matches_the_golden_vectors_and_budgets() {
     if !qemu_or_skip(name) {
         return;
     }
-    let Some(blob) = golden_or_skip(name) else { return };
-    let report = run_target(&TargetArgs { model: blob, ..TargetArgs::default() }).unwrap();
+    let Some(blob) = golden_or_skip(name) else {
+        return;
+    };
+    let report = run_target(&TargetArgs {
+        model: blob,
+        ..TargetArgs::default()
+    })
+    .unwrap();
     assert!(report.bit_exact());
     assert_eq!(report.golden_mismatches, Some(0));
     report.check_budgets().unwrap();
@@ -215,10 +292,21 @@ fn model_too_wide_for_the_buffers_is_refused_at_load() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("wide.blob");
     std::fs::write(&path, synthetic_blob(16, 600, 4, 5)).unwrap();
-    let err = execute(&TargetArgs { model: path.clone(), frames: Some(1), ..TargetArgs::default() }).unwrap_err();
+    let err = execute(&TargetArgs {
+        model: path.clone(),
+        frames: Some(1),
+        ..TargetArgs::default()
+    })
+    .unwrap_err();
     let msg = format!("{err:#}");
-    assert!(msg.contains("exited with code 2 (model blob refused)"), "{msg}");
-    assert!(msg.contains("BufferTooSmall { needed: 600, capacity: 512 }"), "{msg}");
+    assert!(
+        msg.contains("exited with code 2 (model blob refused)"),
+        "{msg}"
+    );
+    assert!(
+        msg.contains("BufferTooSmall { needed: 600, capacity: 512 }"),
+        "{msg}"
+    );
     assert!(msg.contains("activation buffers too small"), "{msg}");
 }
 
@@ -228,9 +316,13 @@ fn model_too_wide_for_the_buffers_is_refused_at_load() {
 fn oversize_buffers_fail_to_link() {
     let target_dir = firmware_dir().join("target").join("must-fail");
     let out = cargo_build(&["oversize-buffers"], Some(&target_dir)).unwrap();
-    assert!(!out.success, "the oversize-buffers firmware linked; it must not");
     assert!(
-        out.stderr.contains("will not fit in region 'RAM'") || out.stderr.contains("will not fit in region `RAM`"),
+        !out.success,
+        "the oversize-buffers firmware linked; it must not"
+    );
+    assert!(
+        out.stderr.contains("will not fit in region 'RAM'")
+            || out.stderr.contains("will not fit in region `RAM`"),
         "unexpected failure:\n{}",
         out.stderr
     );
@@ -248,8 +340,16 @@ fn bad_blobs_are_refused_with_their_error() {
     let mut cases: Vec<(&str, Vec<u8>, &str)> = vec![
         // In a flash region, bytes past a truncated blob are whatever the
         // region holds (zeros here): the payload CRC catches it.
-        ("truncated", good[..good.len() - 8].to_vec(), "PayloadCorrupt"),
-        ("bad magic", b"NOPE but long enough to hold a preamble".to_vec(), "BadMagic"),
+        (
+            "truncated",
+            good[..good.len() - 8].to_vec(),
+            "PayloadCorrupt",
+        ),
+        (
+            "bad magic",
+            b"NOPE but long enough to hold a preamble".to_vec(),
+            "BadMagic",
+        ),
     ];
     let mut payload_flip = good.clone();
     *payload_flip.last_mut().unwrap() ^= 0x80;
@@ -264,9 +364,17 @@ fn bad_blobs_are_refused_with_their_error() {
         let path = dir.path().join("bad.blob");
         std::fs::write(&path, &bytes).unwrap();
         let booted = boot(&elf, &elf_path, Some(&path), None, Duration::from_secs(60)).unwrap();
-        assert_eq!(booted.run.exit_code, wire::exit::BAD_MODEL, "{name}: {:?}", booted.log);
+        assert_eq!(
+            booted.run.exit_code,
+            wire::exit::BAD_MODEL,
+            "{name}: {:?}",
+            booted.log
+        );
         let last = booted.log.last().cloned().unwrap_or_default();
-        assert!(last.starts_with("ERROR") && last.contains(expected), "{name}: {last}");
+        assert!(
+            last.starts_with("ERROR") && last.contains(expected),
+            "{name}: {last}"
+        );
     }
 }
 
@@ -281,4 +389,64 @@ fn firmware_log_snapshots() {
     for (name, outcome) in results {
         println!("snapshot {name}: {outcome:?}");
     }
+}
+
+/// Issue 4 point 3: the real PFNN, int8 weights, cubic gating (about
+/// 2.4 MB), bit-exact under QEMU for 10 frames of realistic inputs
+/// (`Xmean + Xstd * N(0, 1)`). Needs `../shared/pfnn/network`.
+#[test]
+fn real_pfnn_int8_cubic_is_bit_exact_on_the_target() {
+    use exporter::float_pfnn::{FloatPfnn, GatingMode};
+    use npyz::WriterBuilder;
+    let name = "real_pfnn_int8_cubic_is_bit_exact_on_the_target";
+    let dir = repo_root()
+        .join("..")
+        .join("shared")
+        .join("pfnn")
+        .join("network");
+    if !dir.exists() {
+        println!("SKIPPED {name}: no real PFNN at {}", dir.display());
+        return;
+    }
+    if !qemu_or_skip(name) {
+        return;
+    }
+    let tables = exporter::pfnn_dir::load_pfnn_dir(&dir).unwrap();
+    let (net, residual) = FloatPfnn::from_tables(&tables, GatingMode::Cubic);
+    let opts = exporter::quantise::QuantOptions {
+        weights: phasegate::blob::WeightFormat::I8,
+        ..exporter::quantise::QuantOptions::default()
+    };
+    let (blob, _) = exporter::export::export_pfnn(&net, residual, &opts).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let blob_path = tmp.path().join("pfnn-int8-cubic.blob");
+    std::fs::write(&blob_path, &blob).unwrap();
+    let n = 10;
+    let s = exporter::calibrate::normal_inputs(&net.xmean.to_vec(), &net.xstd.to_vec(), n, 1.0, 4);
+    let x: Vec<f32> = s.inputs.iter().flatten().map(|&v| v as f32).collect();
+    let p: Vec<f32> = s.phases.iter().map(|&v| v as f32).collect();
+    let write = |path: &std::path::Path, shape: &[u64], data: &[f32]| {
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(shape)
+            .writer(std::fs::File::create(path).unwrap())
+            .begin_nd()
+            .unwrap();
+        w.extend(data.iter().copied()).unwrap();
+        w.finish().unwrap();
+    };
+    let (xp, pp) = (tmp.path().join("x.npy"), tmp.path().join("p.npy"));
+    write(&xp, &[n as u64, net.xmean.len() as u64], &x);
+    write(&pp, &[n as u64], &p);
+    let report = run_target(&TargetArgs {
+        model: blob_path,
+        frames: None,
+        inputs: Some(xp),
+        phases: Some(pp),
+    })
+    .unwrap();
+    assert!(report.bit_exact());
+    assert_eq!(report.frames, n);
+    assert!(report.blob_len > 2_000_000, "{} bytes", report.blob_len);
+    report.check_budgets().unwrap();
 }

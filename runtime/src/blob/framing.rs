@@ -53,7 +53,9 @@ fn truncated(needed: usize, available: usize) -> Error {
 }
 
 fn read_preamble(bytes: &[u8]) -> Result<Preamble> {
-    let magic = bytes.get(..MAGIC.len()).ok_or(truncated(PREAMBLE_LEN, bytes.len()))?;
+    let magic = bytes
+        .get(..MAGIC.len())
+        .ok_or(truncated(PREAMBLE_LEN, bytes.len()))?;
     if magic != MAGIC {
         return Err(Error::BadMagic);
     }
@@ -63,9 +65,15 @@ fn read_preamble(bytes: &[u8]) -> Result<Preamble> {
         return Err(truncated(PREAMBLE_LEN, bytes.len()));
     };
     if version != FORMAT_VERSION {
-        return Err(Error::UnsupportedVersion { found: version, supported: FORMAT_VERSION });
+        return Err(Error::UnsupportedVersion {
+            found: version,
+            supported: FORMAT_VERSION,
+        });
     }
-    Ok(Preamble { header_len: usize::from(header_len), header_crc })
+    Ok(Preamble {
+        header_len: usize::from(header_len),
+        header_crc,
+    })
 }
 
 /// Checks the header CRC and decodes it; returns the header and where the
@@ -123,6 +131,10 @@ impl<'a> Framed<'a> {
         if crc32(payload) != header.payload_crc {
             return Err(Error::PayloadCorrupt);
         }
-        Ok(Framed { header, payload, blob_len })
+        Ok(Framed {
+            header,
+            payload,
+            blob_len,
+        })
     }
 }

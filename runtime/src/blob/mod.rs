@@ -14,7 +14,9 @@ mod framing;
 mod header;
 pub(crate) mod records;
 
-pub use framing::{blob_len_from_prefix, crc32, Framed, FORMAT_VERSION, MAGIC, PAYLOAD_ALIGN, PREAMBLE_LEN};
+pub use framing::{
+    blob_len_from_prefix, crc32, Framed, FORMAT_VERSION, MAGIC, PAYLOAD_ALIGN, PREAMBLE_LEN,
+};
 pub use header::{
     AccWidth, Activation, Gating, Header, LayerDesc, LayerOp, ModelKind, Section, WeightFormat,
     MAX_LAYERS,

@@ -29,7 +29,16 @@ impl Requant {
     /// Encodes the record (the exporter's side).
     pub fn to_bytes(&self) -> [u8; REQUANT_RECORD_LEN] {
         let m = self.multiplier.to_le_bytes();
-        [m[0], m[1], m[2], m[3], self.pre_shift, self.post_shift, self.frac, 0]
+        [
+            m[0],
+            m[1],
+            m[2],
+            m[3],
+            self.pre_shift,
+            self.post_shift,
+            self.frac,
+            0,
+        ]
     }
 
     /// Decodes a record; `None` if its reserved byte is not zero.
@@ -47,7 +56,10 @@ impl Requant {
 /// Splits a stage record into its two f32 fields.
 pub(crate) fn stage_record(b: &[u8; STAGE_RECORD_LEN]) -> (f32, f32) {
     let [a0, a1, a2, a3, b0, b1, b2, b3] = *b;
-    (f32::from_le_bytes([a0, a1, a2, a3]), f32::from_le_bytes([b0, b1, b2, b3]))
+    (
+        f32::from_le_bytes([a0, a1, a2, a3]),
+        f32::from_le_bytes([b0, b1, b2, b3]),
+    )
 }
 
 /// Reads the `i`-th bias of a section of `width`-byte little-endian integers.
@@ -67,7 +79,12 @@ mod tests {
 
     #[test]
     fn requant_round_trips_and_rejects_reserved_bits() {
-        let r = Requant { multiplier: -123_456_789, pre_shift: 7, post_shift: 40, frac: 9 };
+        let r = Requant {
+            multiplier: -123_456_789,
+            pre_shift: 7,
+            post_shift: 40,
+            frac: 9,
+        };
         let mut b = r.to_bytes();
         assert_eq!(Requant::from_bytes(&b), Some(r));
         b[7] = 1;

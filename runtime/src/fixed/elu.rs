@@ -61,7 +61,10 @@ mod tests {
                 let err = (f64::from(elu_q(x, frac)) - exact).abs();
                 worst = worst.max(err);
             }
-            assert!(worst <= bound, "frac {frac}: worst {worst} LSB > bound {bound}");
+            assert!(
+                worst <= bound,
+                "frac {frac}: worst {worst} LSB > bound {bound}"
+            );
         }
     }
 

@@ -23,7 +23,11 @@ pub struct Gate {
 
 impl Gate {
     /// Expert 0 alone, for ungated layers.
-    pub const SINGLE: Gate = Gate { len: 1, experts: [0; MAX_ACTIVE], weights: [ONE, 0, 0, 0] };
+    pub const SINGLE: Gate = Gate {
+        len: 1,
+        experts: [0; MAX_ACTIVE],
+        weights: [ONE, 0, 0, 0],
+    };
 
     /// The gate of `gating` at `phase`. Panic-free for any gating value:
     /// a zero count is treated as one expert.
@@ -33,7 +37,11 @@ impl Gate {
             Gating::Single => Gate::SINGLE,
             Gating::Constant { tables } => {
                 let s = p * u64::from(tables.max(1));
-                Gate { len: 1, experts: [(s >> 32) as u16, 0, 0, 0], weights: [ONE, 0, 0, 0] }
+                Gate {
+                    len: 1,
+                    experts: [(s >> 32) as u16, 0, 0, 0],
+                    weights: [ONE, 0, 0, 0],
+                }
             }
             Gating::Linear { tables } => {
                 let t = tables.max(1);
@@ -62,7 +70,11 @@ impl Gate {
 
     /// Active experts with their raw Q16 coefficients.
     pub fn iter(&self) -> impl Iterator<Item = (u16, i32)> + '_ {
-        self.experts.iter().copied().zip(self.weights.iter().copied()).take(self.len())
+        self.experts
+            .iter()
+            .copied()
+            .zip(self.weights.iter().copied())
+            .take(self.len())
     }
 
     /// Active experts with their coefficients as `fixed` numbers.
@@ -94,7 +106,12 @@ fn catmull_rom(p: u64, points: u16) -> Gate {
     let w1 = ONE - w0 - w2 - w3;
     Gate {
         len: 4,
-        experts: [next(k1, points.saturating_sub(1), points), k1, next(k1, 1, points), next(k1, 2, points)],
+        experts: [
+            next(k1, points.saturating_sub(1), points),
+            k1,
+            next(k1, 1, points),
+            next(k1, 2, points),
+        ],
         weights: [w0, w1, w2, w3],
     }
 }
@@ -128,14 +145,20 @@ mod tests {
             for ((_, w), e) in gate.iter().zip(exact) {
                 // mu is truncated to Q20 (slope <= 1.5 -> 0.1 LSB), one
                 // rounding each, and w1 collects the others' roundings.
-                assert!((f64::from(w) - e * 65536.0).abs() <= 2.0, "bits {bits:#x}: {w} vs {e}");
+                assert!(
+                    (f64::from(w) - e * 65536.0).abs() <= 2.0,
+                    "bits {bits:#x}: {w} vs {e}"
+                );
             }
         }
     }
 
     #[test]
     fn linear_and_constant_pick_the_demo_tables() {
-        let lin = Gate::new(&Gating::Linear { tables: 10 }, Phase::from_bits(0x8000_0000));
+        let lin = Gate::new(
+            &Gating::Linear { tables: 10 },
+            Phase::from_bits(0x8000_0000),
+        );
         assert_eq!(lin.iter().collect::<Vec<_>>(), vec![(5, ONE), (6, 0)]);
         let lin = Gate::new(&Gating::Linear { tables: 10 }, Phase::from_bits(u32::MAX));
         let v: Vec<_> = lin.iter().collect();
@@ -151,7 +174,11 @@ mod tests {
         for n in [0u16, 1, 2, 3, 4, 7, u16::MAX] {
             for bits in [0u32, 1, 0x7FFF_FFFF, u32::MAX] {
                 let p = Phase::from_bits(bits);
-                for g in [Gating::Constant { tables: n }, Gating::Linear { tables: n }, Gating::CatmullRom { points: n }] {
+                for g in [
+                    Gating::Constant { tables: n },
+                    Gating::Linear { tables: n },
+                    Gating::CatmullRom { points: n },
+                ] {
                     let gate = Gate::new(&g, p);
                     assert!(gate.iter().all(|(e, _)| e < n.max(1)));
                 }

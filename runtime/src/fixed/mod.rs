@@ -36,7 +36,11 @@ mod tests {
         for v in -4000i64..4000 {
             for s in 1u8..10 {
                 let exact = v as f64 / f64::from(1u32 << s);
-                assert_eq!(round_shift(v, s), (exact + 0.5).floor() as i64, "{v} >> {s}");
+                assert_eq!(
+                    round_shift(v, s),
+                    (exact + 0.5).floor() as i64,
+                    "{v} >> {s}"
+                );
             }
         }
         assert_eq!(round_shift(i64::MAX, 1), 1 << 62);

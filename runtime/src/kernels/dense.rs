@@ -4,8 +4,8 @@
 //! pass over `x` (one accumulator per expert), then blended by the Q16 gate
 //! and requantised once: the blended weight matrix never exists.
 
-use crate::blob::{AccWidth, Activation, LayerDesc, Requant, WeightFormat, REQUANT_RECORD_LEN};
 use crate::blob::records::bias_at;
+use crate::blob::{AccWidth, Activation, LayerDesc, Requant, WeightFormat, REQUANT_RECORD_LEN};
 use crate::error::{Error, Result};
 use crate::fixed::elu::elu_q;
 use crate::fixed::gate::{Gate, MAX_ACTIVE};
@@ -44,7 +44,11 @@ impl Weight for W8 {
 impl Weight for W16 {
     #[inline(always)]
     fn row(bytes: &[u8]) -> impl Iterator<Item = i32> + '_ {
-        bytes.as_chunks::<2>().0.iter().map(|c| i32::from(i16::from_le_bytes(*c)))
+        bytes
+            .as_chunks::<2>()
+            .0
+            .iter()
+            .map(|c| i32::from(i16::from_le_bytes(*c)))
     }
 }
 
@@ -104,7 +108,10 @@ fn dot2<W: Weight, A: Acc>(r: [&[u8]; 2], x: &[i16]) -> [A; 2] {
 #[inline(always)]
 fn dot4<W: Weight, A: Acc>(r: [&[u8]; 4], x: &[i16]) -> [A; 4] {
     let (mut a0, mut a1, mut a2, mut a3) = (A::ZERO, A::ZERO, A::ZERO, A::ZERO);
-    let rows = W::row(r[0]).zip(W::row(r[1])).zip(W::row(r[2])).zip(W::row(r[3]));
+    let rows = W::row(r[0])
+        .zip(W::row(r[1]))
+        .zip(W::row(r[2]))
+        .zip(W::row(r[3]));
     for ((((w0, w1), w2), w3), &v) in rows.zip(x) {
         let v = i32::from(v);
         a0 = a0.mac(w0 * v);
@@ -131,7 +138,9 @@ impl<'a> DenseLayer<'a> {
     fn row(&self, expert: u16, row: usize) -> Result<&'a [u8]> {
         let rb = self.row_bytes();
         let start = (usize::from(expert) * usize::from(self.desc.out_dim) + row) * rb;
-        self.weights.get(start..start + rb).ok_or(Error::SectionLength { layer: self.index })
+        self.weights
+            .get(start..start + rb)
+            .ok_or(Error::SectionLength { layer: self.index })
     }
 
     /// Runs the layer: `x` has `in_dim` elements, `y` at least `out_dim`.
@@ -146,14 +155,17 @@ impl<'a> DenseLayer<'a> {
 
     fn run_typed<W: Weight, A: Acc>(&self, gate: &Gate, x: &[i16], y: &mut [i16]) -> Result<()> {
         let out = usize::from(self.desc.out_dim);
-        let x = x.get(..usize::from(self.desc.in_dim)).ok_or(Error::LengthMismatch {
-            expected: u32::from(self.desc.in_dim),
-            found: x.len() as u32,
-        })?;
+        let x = x
+            .get(..usize::from(self.desc.in_dim))
+            .ok_or(Error::LengthMismatch {
+                expected: u32::from(self.desc.in_dim),
+                found: x.len() as u32,
+            })?;
         let capacity = y.len() as u32;
-        let y = y
-            .get_mut(..out)
-            .ok_or(Error::BufferTooSmall { needed: u32::from(self.desc.out_dim), capacity })?;
+        let y = y.get_mut(..out).ok_or(Error::BufferTooSmall {
+            needed: u32::from(self.desc.out_dim),
+            capacity,
+        })?;
         let mut experts = [0u16; MAX_ACTIVE];
         let mut coefs = [0i64; MAX_ACTIVE];
         for (slot, (e, w)) in gate.iter().enumerate().take(MAX_ACTIVE) {
@@ -176,7 +188,12 @@ impl<'a> DenseLayer<'a> {
                     [a.widen(), b.widen(), 0, 0]
                 }
                 _ => {
-                    let rows = [self.row(e0, i)?, self.row(e1, i)?, self.row(e2, i)?, self.row(e3, i)?];
+                    let rows = [
+                        self.row(e0, i)?,
+                        self.row(e1, i)?,
+                        self.row(e2, i)?,
+                        self.row(e3, i)?,
+                    ];
                     dot4::<W, A>(rows, x).map(Acc::widen)
                 }
             };
@@ -185,7 +202,12 @@ impl<'a> DenseLayer<'a> {
                 let b = bias_at(self.bias, bias_width, usize::from(e) * out + i).unwrap_or(0);
                 total = total.saturating_add(acc.saturating_add(b).saturating_mul(g));
             }
-            let r = Requant::from_bytes(rec).unwrap_or(Requant { multiplier: 0, pre_shift: 0, post_shift: 0, frac: 0 });
+            let r = Requant::from_bytes(rec).unwrap_or(Requant {
+                multiplier: 0,
+                pre_shift: 0,
+                post_shift: 0,
+                frac: 0,
+            });
             let q = requantise(total, &r);
             *yi = match self.desc.activation {
                 Activation::Identity => q,

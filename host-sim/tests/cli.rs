@@ -1,0 +1,171 @@
+//! The `host-sim` command-line contract on the embedded default model.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn host_sim(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .args(args)
+        .output()
+        .expect("host-sim runs")
+}
+
+fn golden(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../tests/golden/default")
+        .join(name)
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn eval_model_reproduces_the_golden_outputs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (y, q) = (tmp.path().join("y.npy"), tmp.path().join("q.npy"));
+    let o = host_sim(&[
+        "eval",
+        "--model",
+        s(&golden("model.blob")),
+        "--inputs",
+        s(&golden("inputs.npy")),
+        "--phases",
+        s(&golden("phases.npy")),
+        "--out",
+        s(&y),
+        "--raw-out",
+        s(&q),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        std::fs::read(&y).unwrap(),
+        std::fs::read(golden("expected.npy")).unwrap()
+    );
+    assert_eq!(
+        std::fs::read(&q).unwrap(),
+        std::fs::read(golden("expected_q.npy")).unwrap()
+    );
+}
+
+#[test]
+fn eval_reference_and_compare() {
+    let tmp = tempfile::tempdir().unwrap();
+    let y = tmp.path().join("ref.npy");
+    let o = host_sim(&[
+        "eval",
+        "--reference",
+        s(&golden("model.npz")),
+        "--gating",
+        "cubic",
+        "--inputs",
+        s(&golden("inputs.npy")),
+        "--phases",
+        s(&golden("phases.npy")),
+        "--out",
+        s(&y),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = host_sim(&["compare", s(&golden("expected.npy")), s(&y)]);
+    assert!(o.status.success());
+    let table = String::from_utf8_lossy(&o.stdout);
+    for group in [
+        "root motion",
+        "phase",
+        "contacts",
+        "trajectory",
+        "joint positions",
+        "joint velocities",
+        "joint rotations",
+        "overall",
+    ] {
+        assert!(table.contains(group), "{table}");
+    }
+    let o = host_sim(&["compare", "--json", s(&golden("expected.npy")), s(&y)]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let rms = v["overall"]["rms"].as_f64().unwrap();
+    let max = v["overall"]["max_abs"].as_f64().unwrap();
+    // int8 weights on a random hidden-32 net: errors well under the output stds (up to 20).
+    assert!(rms > 0.0 && rms < 0.5, "rms {rms}");
+    assert!(max < 10.0, "max {max}");
+    assert_eq!(v["groups"].as_array().unwrap().len(), 7);
+    // A file compared with itself: exactly zero.
+    let o = host_sim(&["compare", "--json", s(&y), s(&y)]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["overall"]["max_abs"].as_f64().unwrap(), 0.0);
+}
+
+#[test]
+fn demo_prints_the_error_table_and_figures() {
+    let o = host_sim(&["demo", "--frames", "200"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    for needle in [
+        "200 frames",
+        "overall",
+        "blob size        102016 bytes",
+        "RAM needed",
+        "MACs per frame   87680",
+    ] {
+        assert!(text.contains(needle), "{needle}: {text}");
+    }
+}
+
+#[test]
+fn bad_arguments_fail_in_one_line_and_write_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let y = tmp.path().join("y.npy");
+    // Inputs of the wrong width (phases given as inputs).
+    let cases: Vec<Vec<String>> = vec![
+        vec![
+            "eval",
+            "--model",
+            s(&golden("model.blob")),
+            "--inputs",
+            s(&golden("phases.npy")),
+            "--phases",
+            s(&golden("phases.npy")),
+            "--out",
+            s(&y),
+        ],
+        vec![
+            "eval",
+            "--model",
+            s(&golden("model.npz")),
+            "--inputs",
+            s(&golden("inputs.npy")),
+            "--phases",
+            s(&golden("phases.npy")),
+            "--out",
+            s(&y),
+        ],
+        vec![
+            "eval",
+            "--model",
+            s(&golden("model.blob")),
+            "--inputs",
+            s(&golden("inputs.npy")),
+            "--phases",
+            s(&golden("expected.npy")),
+            "--out",
+            s(&y),
+        ],
+        vec![
+            "compare",
+            s(&golden("expected.npy")),
+            s(&golden("inputs.npy")),
+        ],
+    ]
+    .into_iter()
+    .map(|v| v.into_iter().map(String::from).collect())
+    .collect();
+    for args in cases {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = host_sim(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.starts_with("error: "), "{err}");
+        assert!(!y.exists());
+    }
+}

@@ -1,0 +1,59 @@
+//! Golden vectors of the embedded default model: the runtime must give
+//! exactly the checked-in outputs, and the checked-in files must be exactly
+//! what the documented command regenerates.
+
+use std::path::{Path, PathBuf};
+
+fn golden_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("golden/default")
+}
+
+#[test]
+fn runtime_matches_golden_outputs_bit_for_bit() {
+    let frames = host_sim::golden::check(&golden_dir()).unwrap();
+    assert_eq!(frames, host_sim::golden::FRAMES);
+}
+
+#[test]
+fn golden_files_regenerate_byte_for_byte() {
+    let tmp = tempfile::tempdir().unwrap();
+    host_sim::golden::write(tmp.path()).unwrap();
+    for name in [
+        "model.npz",
+        "model.blob",
+        "inputs.npy",
+        "phases.npy",
+        "expected_q.npy",
+        "expected.npy",
+    ] {
+        let fresh = std::fs::read(tmp.path().join(name)).unwrap();
+        let checked_in = std::fs::read(golden_dir().join(name)).unwrap();
+        assert!(
+            fresh == checked_in,
+            "{name} differs from a fresh `host-sim golden --write`: regenerate the golden files and review the change"
+        );
+    }
+}
+
+#[test]
+fn embedded_float_source_is_the_generator_output() {
+    let generated = host_sim::default_model::generate();
+    let embedded = host_sim::default_model::float_model().unwrap();
+    assert_eq!(generated, embedded);
+}
+
+#[test]
+fn a_changed_output_is_caught() {
+    let tmp = tempfile::tempdir().unwrap();
+    for e in std::fs::read_dir(golden_dir()).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), tmp.path().join(e.file_name())).unwrap();
+    }
+    let q = tmp.path().join("expected_q.npy");
+    let mut bytes = std::fs::read(&q).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 1;
+    std::fs::write(&q, bytes).unwrap();
+    let err = host_sim::golden::check(tmp.path()).unwrap_err().to_string();
+    assert!(err.contains("golden mismatch"), "{err}");
+}

@@ -1,0 +1,137 @@
+//! The real PFNN (../shared/pfnn/network, or $PHASEGATE_PFNN_DIR): accuracy
+//! bars of the fixed-point runtime against the float reference, and the
+//! float reference against an independent NumPy computation. Skipped, with
+//! a message, where the weights are absent.
+
+use host_sim::accuracy::{measure, sample_matrix};
+use std::path::{Path, PathBuf};
+
+fn pfnn_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("PHASEGATE_PFNN_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/pfnn/network"));
+    if dir.join("Xmean.bin").is_file() {
+        Some(dir)
+    } else {
+        eprintln!(
+            "skipped: real PFNN weights not found at {} (set PHASEGATE_PFNN_DIR)",
+            dir.display()
+        );
+        None
+    }
+}
+
+/// Foundation issue, point 6: 64 samples per spread s in {0, .25, .5, 1},
+/// inputs Xmean + Xstd N(0,1) s, random phases, fixed seed.
+#[test]
+fn fixed_point_meets_the_accuracy_bars() {
+    let Some(dir) = pfnn_dir() else { return };
+    let tables = exporter::pfnn_dir::load_pfnn_dir(&dir).unwrap();
+    let a = measure(&tables, 64, 7).unwrap();
+    println!("{}", a.table());
+    for r in &a.rows {
+        let (i16, i8) = (&r.int16.overall, &r.int8.overall);
+        assert!(
+            i16.rms <= 0.01 && i16.max_abs <= 0.2,
+            "int16 at spread {}: rms {} max {}",
+            r.spread,
+            i16.rms,
+            i16.max_abs
+        );
+        assert!(
+            i8.rms <= 0.3 && i8.max_abs <= 16.0,
+            "int8 at spread {}: rms {} max {}",
+            r.spread,
+            i8.rms,
+            i8.max_abs
+        );
+        // And well below the error the demo's own constant mode accepts.
+        assert!(i8.rms < r.demo_constant.overall.rms, "spread {}", r.spread);
+    }
+    for report in [&a.int8_report, &a.int16_report] {
+        assert!(report.overflow_proof);
+        let res = report.control_point_residual.unwrap();
+        assert!(
+            res.rel_frobenius < 1e-6,
+            "control-point residual {}",
+            res.rel_frobenius
+        );
+    }
+    // 4 control points x 596,480 weights, plus biases, records and stages.
+    assert!(
+        (2_380_000..2_450_000).contains(&a.int8_report.blob_bytes),
+        "{}",
+        a.int8_report.blob_bytes
+    );
+    assert!(
+        (4_760_000..4_860_000).contains(&a.int16_report.blob_bytes),
+        "{}",
+        a.int16_report.blob_bytes
+    );
+}
+
+fn python_with_numpy() -> bool {
+    std::process::Command::new("python3")
+        .args(["-c", "import numpy"])
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false)
+}
+
+/// The float reference against scripts/reference_check.py, written
+/// separately from the published formulas, in all three modes.
+#[test]
+fn float_reference_matches_independent_numpy() {
+    let Some(dir) = pfnn_dir() else { return };
+    if !python_with_numpy() {
+        eprintln!("skipped: python3 with numpy not available");
+        return;
+    }
+    let tables = exporter::pfnn_dir::load_pfnn_dir(&dir).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/reference_check.py");
+    for (mode, name) in [
+        (exporter::float_pfnn::GatingMode::Cubic, "cubic"),
+        (exporter::float_pfnn::GatingMode::Linear, "linear"),
+        (exporter::float_pfnn::GatingMode::Constant, "constant"),
+    ] {
+        let (net, _) = exporter::float_pfnn::FloatPfnn::from_tables(&tables, mode);
+        let (x, p) = sample_matrix(&net, 64, 1.0, 99);
+        let y = host_sim::eval::run_reference(&net, &x, &p).unwrap();
+        let (xp, pp, yp) = (
+            tmp.path().join("x.npy"),
+            tmp.path().join("p.npy"),
+            tmp.path().join(format!("y-{name}.npy")),
+        );
+        host_sim::npy::write_matrix(&xp, &x).unwrap();
+        host_sim::npy::write_vector(&pp, &p).unwrap();
+        host_sim::npy::write_matrix(&yp, &y).unwrap();
+        let o = std::process::Command::new("python3")
+            .arg(&script)
+            .args([
+                "--pfnn",
+                dir.to_str().unwrap(),
+                "--gating",
+                name,
+                "--rtol",
+                "1e-5",
+            ])
+            .args([
+                "--inputs",
+                xp.to_str().unwrap(),
+                "--phases",
+                pp.to_str().unwrap(),
+                "--outputs",
+                yp.to_str().unwrap(),
+            ])
+            .output()
+            .unwrap();
+        println!("{name}: {}", String::from_utf8_lossy(&o.stdout));
+        assert!(
+            o.status.success(),
+            "{name}: {}{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+}
