@@ -58,6 +58,10 @@ struct QuantArgs {
     /// Also write a JSON report (sizes, SQNR per layer, residual, overflow proof).
     #[arg(long)]
     report: Option<PathBuf>,
+    /// Raw inputs within mean +- this many standard deviations quantise
+    /// without clipping (rounded up to a power of two; wider = coarser).
+    #[arg(long, default_value_t = 8.0)]
+    input_range_sigma: f64,
 }
 
 fn parse_bits(s: &str) -> Result<u8, String> {

@@ -52,7 +52,7 @@ impl Default for QuantOptions {
     fn default() -> Self {
         QuantOptions {
             weights: WeightFormat::I8,
-            input_range_sigma: 16.0,
+            input_range_sigma: 8.0,
             calibration_samples: 512,
             calibration_scale: 1.0,
             headroom: 1.5,

@@ -15,6 +15,7 @@ pub struct Runtime<'a, const W: usize> {
     model: Model<'a>,
     a: [i16; W],
     b: [i16; W],
+    clipped: u32,
 }
 
 impl<'a, const W: usize> Runtime<'a, W> {
@@ -34,6 +35,7 @@ impl<'a, const W: usize> Runtime<'a, W> {
             model,
             a: [0; W],
             b: [0; W],
+            clipped: 0,
         })
     }
 
@@ -58,7 +60,7 @@ impl<'a, const W: usize> Runtime<'a, W> {
     pub fn run(&mut self, phase: Phase, input: &[f32], output: &mut [f32]) -> Result<()> {
         check_len(self.model.output_dim(), output.len())?;
         let model = self.model.clone();
-        quantise_into(&model, input, &mut self.a)?;
+        self.clipped = quantise_into(&model, input, &mut self.a)?;
         let q = self.forward(phase)?;
         for ((o, &v), (scale, offset)) in output.iter_mut().zip(q).zip(model.output_stage()) {
             *o = f32::from(v) * scale + offset;
@@ -66,11 +68,18 @@ impl<'a, const W: usize> Runtime<'a, W> {
         Ok(())
     }
 
+    /// How many inputs of the last `run` fell outside the range the blob
+    /// declares and were clipped (0 in normal operation; see the export
+    /// report's `input_range_sigma`).
+    pub fn clipped_inputs(&self) -> u32 {
+        self.clipped
+    }
+
     /// The quantised input for `input` (model units), as `run` computes it:
     /// `q = round((x - offset) * scale)` in IEEE f32, ties away from zero,
     /// saturated to i16.
     pub fn quantise_input(&self, input: &[f32], out: &mut [i16]) -> Result<()> {
-        quantise_into(&self.model, input, out)
+        quantise_into(&self.model, input, out).map(|_| ())
     }
 
     /// De-quantises the i16 outputs of [`Runtime::run_quantised`].
@@ -131,12 +140,14 @@ fn round_to_i16(v: f32) -> i16 {
     sat_i16(r as i64)
 }
 
-fn quantise_into(model: &Model<'_>, input: &[f32], out: &mut [i16]) -> Result<()> {
+/// Quantises `input` into `out`; returns how many values were clipped.
+fn quantise_into(model: &Model<'_>, input: &[f32], out: &mut [i16]) -> Result<u32> {
     check_len(model.input_dim(), input.len())?;
     let capacity = out.len();
     let out = out
         .get_mut(..input.len())
         .ok_or(buffer_error(input.len(), capacity))?;
+    let mut clipped = 0;
     for (i, ((o, &x), (offset, scale))) in out
         .iter_mut()
         .zip(input)
@@ -146,9 +157,11 @@ fn quantise_into(model: &Model<'_>, input: &[f32], out: &mut [i16]) -> Result<()
         if !x.is_finite() {
             return Err(Error::NonFinite { index: i as u32 });
         }
-        *o = round_to_i16((x - offset) * scale);
+        let q = round_to_i16((x - offset) * scale);
+        clipped += u32::from(q == i16::MAX || q == i16::MIN);
+        *o = q;
     }
-    Ok(())
+    Ok(clipped)
 }
 
 #[cfg(test)]

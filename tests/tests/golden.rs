@@ -57,3 +57,20 @@ fn a_changed_output_is_caught() {
     let err = host_sim::golden::check(tmp.path()).unwrap_err().to_string();
     assert!(err.contains("golden mismatch"), "{err}");
 }
+
+#[test]
+fn clipped_inputs_are_counted() {
+    let model = phasegate::Model::from_bytes(host_sim::default_model::BLOB).unwrap();
+    let mut rt = host_sim::eval::host_runtime(model).unwrap();
+    let x = host_sim::npy::read_matrix_f32(&golden_dir().join("inputs.npy"), 342).unwrap();
+    let phase = phasegate::Phase::from_bits(0);
+    let mut y = vec![0.0f32; 311];
+    rt.run(phase, x.row(0), &mut y).unwrap();
+    assert_eq!(rt.clipped_inputs(), 0, "golden inputs lie inside the declared range");
+    let mut far = x.row(0).to_vec();
+    far[3] = 1e9;
+    far[7] = -1e9;
+    rt.run(phase, &far, &mut y).unwrap();
+    assert_eq!(rt.clipped_inputs(), 2);
+    assert!(y.iter().all(|v| v.is_finite()));
+}
