@@ -16,6 +16,12 @@
 //! host-sim) and `docs/firmware.md`.
 #![no_std]
 #![no_main]
+#![deny(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 mod measure;
 // Shared with host-sim, which uses the decoding half.
@@ -27,7 +33,7 @@ use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, Ordering};
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
-use defmt::{error, info, warn, Display2Format};
+use defmt::{error, info, Display2Format};
 use defmt_semihosting as _;
 use phasegate::{Model, Phase, Runtime};
 use semihosting::fs::File;
@@ -56,16 +62,24 @@ unsafe impl<T> Sync for Slot<T> {}
 impl<T> Slot<T> {
     /// An empty slot, filled by [`Slot::init`].
     const fn empty() -> Self {
-        Slot { taken: AtomicBool::new(false), value: UnsafeCell::new(MaybeUninit::uninit()) }
+        Slot {
+            taken: AtomicBool::new(false),
+            value: UnsafeCell::new(MaybeUninit::uninit()),
+        }
     }
 
     /// A slot holding `value` from the start, handed out by [`Slot::take`].
     const fn with(value: T) -> Self {
-        Slot { taken: AtomicBool::new(false), value: UnsafeCell::new(MaybeUninit::new(value)) }
+        Slot {
+            taken: AtomicBool::new(false),
+            value: UnsafeCell::new(MaybeUninit::new(value)),
+        }
     }
 
     /// Moves `value` into an empty slot and returns the only `&mut` to it;
     /// `None` if the slot was handed out before.
+    // A `&mut` from `&self` is the point (as in static_cell): `taken` makes it unique.
+    #[allow(clippy::mut_from_ref)]
     fn init(&'static self, value: T) -> Option<&'static mut T> {
         if self.taken.swap(true, Ordering::AcqRel) {
             return None;
@@ -79,6 +93,7 @@ impl<T> Slot<T> {
     ///
     /// # Safety
     /// The slot must have been made with [`Slot::with`] (initialised).
+    #[allow(clippy::mut_from_ref)]
     unsafe fn take(&'static self) -> Option<&'static mut T> {
         if self.taken.swap(true, Ordering::AcqRel) {
             return None;
@@ -121,7 +136,12 @@ unsafe fn region(start: *const u8, end: *const u8) -> &'static [u8] {
     let (s, e) = (start as usize, end as usize);
     // SAFETY: caller's contract; the regions are reserved in memory.x and the
     // firmware never writes them (the QEMU loader fills them before reset).
-    unsafe { core::slice::from_raw_parts(core::ptr::with_exposed_provenance::<u8>(s), e.saturating_sub(s)) }
+    unsafe {
+        core::slice::from_raw_parts(
+            core::ptr::with_exposed_provenance::<u8>(s),
+            e.saturating_sub(s),
+        )
+    }
 }
 
 fn exit(code: i32) -> ! {
@@ -136,7 +156,10 @@ fn main() -> ! {
         None => exit(wire::exit::PANIC),
     };
     measure::start_ticks(&mut cp.SYST);
-    info!("phasegate firmware {=str} on MPS2-AN386 (Cortex-M4F)", env!("CARGO_PKG_VERSION"));
+    info!(
+        "phasegate firmware {=str} on MPS2-AN386 (Cortex-M4F)",
+        env!("CARGO_PKG_VERSION")
+    );
     let calib_ticks = measure::calibrate();
     info!(
         "SysTick calibration: {=u32} instructions took {=u32} ticks",
@@ -148,8 +171,14 @@ fn main() -> ! {
     // by the loader before reset and never written by the firmware.
     let (model_region, hostio) = unsafe {
         (
-            region(&raw const _phasegate_model_start, &raw const _phasegate_model_end),
-            region(&raw const _phasegate_hostio_start, &raw const _phasegate_hostio_end),
+            region(
+                &raw const _phasegate_model_start,
+                &raw const _phasegate_model_end,
+            ),
+            region(
+                &raw const _phasegate_hostio_start,
+                &raw const _phasegate_hostio_end,
+            ),
         )
     };
     let model_addr = model_region.as_ptr() as u32;
@@ -157,7 +186,12 @@ fn main() -> ! {
     let model = match Model::from_region(model_region) {
         Ok(m) => m,
         Err(e) => {
-            error!("model blob at {=u32:#010x} refused: {} ({})", model_addr, e, Display2Format(&e));
+            error!(
+                "model blob at {=u32:#010x} refused: {} ({})",
+                model_addr,
+                e,
+                Display2Format(&e)
+            );
             exit(wire::exit::BAD_MODEL);
         }
     };
@@ -168,10 +202,14 @@ fn main() -> ! {
         model.header()
     );
     let (input_dim, output_dim) = (model.input_dim(), model.output_dim());
-    let rt = match Runtime::<'static, W>::new(model) {
+    let rt = match init_runtime(model) {
         Ok(rt) => rt,
         Err(e) => {
-            error!("model refused by the runtime: {} ({})", e, Display2Format(&e));
+            error!(
+                "model refused by the runtime: {} ({})",
+                e,
+                Display2Format(&e)
+            );
             exit(wire::exit::BAD_MODEL);
         }
     };
@@ -180,16 +218,22 @@ fn main() -> ! {
         Runtime::<'static, W>::CAPACITY_BYTES,
         rt.model().ram_bytes()
     );
-    let Some(rt) = RUNTIME.init(rt) else { exit(wire::exit::PANIC) };
 
     let (input, records) = match wire::InputHeader::parse(hostio) {
         Ok(v) => v,
         Err(wire::WireError::BadMagic) => {
-            info!("no input image at {=u32:#010x}: model validated, no frames to run", hostio.as_ptr() as u32);
+            info!(
+                "no input image at {=u32:#010x}: model validated, no frames to run",
+                hostio.as_ptr() as u32
+            );
             finish(0, calib_ticks, None);
         }
         Err(e) => {
-            error!("input image at {=u32:#010x} refused: {}", hostio.as_ptr() as u32, e);
+            error!(
+                "input image at {=u32:#010x} refused: {}",
+                hostio.as_ptr() as u32,
+                e
+            );
             exit(wire::exit::BAD_INPUT);
         }
     };
@@ -203,12 +247,21 @@ fn main() -> ! {
     info!("input image: {=u32} frames", input.frames);
 
     // SAFETY: IO is made with `Slot::with`.
-    let Some(io) = (unsafe { IO.take() }) else { exit(wire::exit::PANIC) };
-    let out_header = wire::OutputHeader { frames: input.frames, output_dim: input.output_dim, input_crc: input.crc };
+    let Some(io) = (unsafe { IO.take() }) else {
+        exit(wire::exit::PANIC)
+    };
+    let out_header = wire::OutputHeader {
+        frames: input.frames,
+        output_dim: input.output_dim,
+        input_crc: input.crc,
+    };
     let mut file = match File::create(c"phasegate-out.bin") {
         Ok(f) => f,
         Err(_) => {
-            error!("cannot create {=str} on the host (semihosting)", wire::OUTPUT_FILE);
+            error!(
+                "cannot create {=str} on the host (semihosting)",
+                wire::OUTPUT_FILE
+            );
             exit(wire::exit::OUTPUT_ERROR);
         }
     };
@@ -217,13 +270,28 @@ fn main() -> ! {
         exit(wire::exit::OUTPUT_ERROR);
     }
 
-    let (inputs, inputs_q) = (&mut io.inputs[..input_dim], &mut io.inputs_q[..input_dim]);
-    let (outputs_q, outputs) = (&mut io.outputs_q[..output_dim], &mut io.outputs[..output_dim]);
-    let record = &mut io.record[..out_header.record_len()];
+    // The runtime accepted the model, so both dims fit W (they are layer
+    // widths); checked again here rather than trusted, so no slice panics.
+    let record_len = out_header.record_len();
+    let (Some(inputs), Some(inputs_q), Some(outputs_q), Some(outputs), Some(record)) = (
+        io.inputs.get_mut(..input_dim),
+        io.inputs_q.get_mut(..input_dim),
+        io.outputs_q.get_mut(..output_dim),
+        io.outputs.get_mut(..output_dim),
+        io.record.get_mut(..record_len),
+    ) else {
+        error!(
+            "model dimensions exceed the firmware's {=usize}-element buffers",
+            W
+        );
+        exit(wire::exit::BAD_MODEL);
+    };
     let mut frames_done = 0u32;
     for (i, rec) in records.chunks_exact(input.record_len()).enumerate() {
         let t0 = measure::now();
-        let Some(radians) = wire::read_record(rec, inputs) else { exit(wire::exit::BAD_INPUT) };
+        let Some(radians) = wire::read_record(rec, inputs) else {
+            exit(wire::exit::BAD_INPUT)
+        };
         let prepared = Phase::from_radians(radians).and_then(|phase| {
             rt.quantise_input(inputs, inputs_q)?;
             Ok(phase)
@@ -231,27 +299,57 @@ fn main() -> ! {
         let phase = match prepared {
             Ok(p) => p,
             Err(e) => {
-                error!("frame {=usize}: input refused: {} ({})", i, e, Display2Format(&e));
+                error!(
+                    "frame {=usize}: input refused: {} ({})",
+                    i,
+                    e,
+                    Display2Format(&e)
+                );
                 exit(wire::exit::FRAME_ERROR);
             }
         };
         let t1 = measure::now();
-        let result = rt.run_quantised(phase, inputs_q).map(|q| outputs_q.copy_from_slice(q));
+        let result = rt
+            .run_quantised(phase, inputs_q)
+            .map(|q| outputs_q.copy_from_slice(q));
         let t2 = measure::now();
         if let Err(e) = result.and_then(|()| rt.dequantise_output(outputs_q, outputs)) {
             error!("frame {=usize}: {} ({})", i, e, Display2Format(&e));
             exit(wire::exit::FRAME_ERROR);
         }
         let t3 = measure::now();
-        let head = wire::RecordHead { infer_ticks: measure::elapsed(t1, t2), frame_ticks: measure::elapsed(t0, t3) };
-        if wire::encode_record(head, outputs_q, outputs, record).is_none() || file.write_all(record).is_err() {
+        let head = wire::RecordHead {
+            infer_ticks: measure::elapsed(t1, t2),
+            frame_ticks: measure::elapsed(t0, t3),
+        };
+        if wire::encode_record(head, outputs_q, outputs, record).is_none()
+            || file.write_all(record).is_err()
+        {
             error!("frame {=usize}: cannot write {=str}", i, wire::OUTPUT_FILE);
             exit(wire::exit::OUTPUT_ERROR);
         }
         frames_done += 1;
     }
-    info!("{=u32} frames run, outputs written to {=str}", frames_done, wire::OUTPUT_FILE);
+    info!(
+        "{=u32} frames run, outputs written to {=str}",
+        frames_done,
+        wire::OUTPUT_FILE
+    );
     finish(frames_done, calib_ticks, Some(file));
+}
+
+/// Makes the runtime and moves it into its static. Not inlined, so the
+/// transient `Runtime` value lives in this short-lived frame rather than in
+/// `main`'s, which stays on the stack for the whole run.
+#[inline(never)]
+fn init_runtime(
+    model: Model<'static>,
+) -> Result<&'static mut Runtime<'static, W>, phasegate::Error> {
+    let rt = Runtime::<'static, W>::new(model)?;
+    match RUNTIME.init(rt) {
+        Some(rt) => Ok(rt),
+        None => exit(wire::exit::PANIC),
+    }
 }
 
 /// Measures the stack, writes the trailer (when there is an output file) and
@@ -288,5 +386,6 @@ unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
 
 #[exception]
 unsafe fn DefaultHandler(irqn: i16) {
-    warn!("unexpected exception or interrupt {=i16}", irqn);
+    error!("unexpected exception or interrupt {=i16}", irqn);
+    exit(wire::exit::HARD_FAULT)
 }

@@ -115,7 +115,9 @@ pub fn paint_stack() {
     while p + 4 <= sp.saturating_sub(MARGIN) {
         // SAFETY: [bottom, sp - MARGIN) is RAM below the live stack that
         // nothing else uses (no heap, no other task); word aligned.
-        unsafe { core::ptr::write_volatile(core::ptr::with_exposed_provenance_mut::<u32>(p), PAINT) };
+        unsafe {
+            core::ptr::write_volatile(core::ptr::with_exposed_provenance_mut::<u32>(p), PAINT)
+        };
         p += 4;
     }
 }

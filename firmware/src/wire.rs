@@ -69,7 +69,9 @@ impl core::fmt::Display for WireError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match *self {
             WireError::BadMagic => f.write_str("bad magic (nothing loaded there?)"),
-            WireError::UnsupportedVersion(v) => write!(f, "unsupported version {v} (this reads {VERSION})"),
+            WireError::UnsupportedVersion(v) => {
+                write!(f, "unsupported version {v} (this reads {VERSION})")
+            }
             WireError::BadHeader => f.write_str("inconsistent header"),
             WireError::Truncated { needed, available } => {
                 write!(f, "truncated: needs {needed} bytes, has {available}")
@@ -107,7 +109,10 @@ fn put_u16(b: &mut [u8], at: usize, v: u16) {
 
 fn check_preamble(b: &[u8], magic: [u8; 4]) -> Result<(), WireError> {
     if b.len() < HEADER_LEN {
-        return Err(WireError::Truncated { needed: HEADER_LEN as u64, available: b.len() as u64 });
+        return Err(WireError::Truncated {
+            needed: HEADER_LEN as u64,
+            available: b.len() as u64,
+        });
     }
     if b.get(..4) != Some(&magic[..]) {
         return Err(WireError::BadMagic);
@@ -184,14 +189,22 @@ impl InputHeader {
             output_dim: u32_at(region, 16),
             crc: u32_at(region, 24),
         };
-        if h.input_dim == 0 || h.input_dim > 0x0100_0000 || u32_at(region, 20) as usize != h.record_len() {
+        if h.input_dim == 0
+            || h.input_dim > 0x0100_0000
+            || u32_at(region, 20) as usize != h.record_len()
+        {
             return Err(WireError::BadHeader);
         }
         let end = h.image_len();
         if end > region.len() as u64 {
-            return Err(WireError::Truncated { needed: end, available: region.len() as u64 });
+            return Err(WireError::Truncated {
+                needed: end,
+                available: region.len() as u64,
+            });
         }
-        let records = region.get(HEADER_LEN..end as usize).ok_or(WireError::BadHeader)?;
+        let records = region
+            .get(HEADER_LEN..end as usize)
+            .ok_or(WireError::BadHeader)?;
         if crc32(records) != h.crc {
             return Err(WireError::CrcMismatch);
         }
@@ -290,7 +303,10 @@ pub fn decode_record(buf: &[u8], q: &mut [i16], f: &mut [f32]) -> Option<RecordH
     if q.len() != f.len() || buf.len() != 8 + 6 * q.len() {
         return None;
     }
-    let head = RecordHead { infer_ticks: u32_at(buf, 0), frame_ticks: u32_at(buf, 4) };
+    let head = RecordHead {
+        infer_ticks: u32_at(buf, 0),
+        frame_ticks: u32_at(buf, 4),
+    };
     for (i, v) in q.iter_mut().enumerate() {
         *v = u16_at(buf, 8 + 2 * i) as i16;
     }
@@ -333,7 +349,10 @@ impl Trailer {
     /// Parses a trailer.
     pub fn parse(b: &[u8]) -> Result<Trailer, WireError> {
         if b.len() != HEADER_LEN {
-            return Err(WireError::Truncated { needed: HEADER_LEN as u64, available: b.len() as u64 });
+            return Err(WireError::Truncated {
+                needed: HEADER_LEN as u64,
+                available: b.len() as u64,
+            });
         }
         if b.get(..4) != Some(&TRAILER_MAGIC[..]) {
             return Err(WireError::BadMagic);
@@ -363,7 +382,7 @@ pub mod exit {
     pub const FRAME_ERROR: i32 = 4;
     /// Writing the output file through semihosting failed.
     pub const OUTPUT_ERROR: i32 = 5;
-    /// A hard fault (bad memory access, ...).
+    /// A hard fault (bad memory access, ...) or an unexpected interrupt.
     pub const HARD_FAULT: i32 = 6;
 
     /// One line saying what an exit code means.
@@ -375,7 +394,7 @@ pub mod exit {
             BAD_INPUT => "input image refused",
             FRAME_ERROR => "runtime refused a frame",
             OUTPUT_ERROR => "could not write the output file",
-            HARD_FAULT => "hard fault",
+            HARD_FAULT => "hard fault or unexpected interrupt",
             _ => "unknown exit code",
         }
     }

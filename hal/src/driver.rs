@@ -81,7 +81,16 @@ where
     /// A driver running one frame every `period_ns` (non-zero; e.g.
     /// 16,666,667 for 60 Hz).
     pub fn new(delay: D, pin: P, clock: C, servos: [Servo<S>; N], period_ns: u32) -> Self {
-        FrameDriver { delay, pin, clock, servos, period_ns: period_ns.max(1), next_start: None, frames: 0, overruns: 0 }
+        FrameDriver {
+            delay,
+            pin,
+            clock,
+            servos,
+            period_ns: period_ns.max(1),
+            next_start: None,
+            frames: 0,
+            overruns: 0,
+        }
     }
 
     /// The frame period, ns.
@@ -119,16 +128,24 @@ where
         let inference_end = self.clock.now_ns();
         pin_low.map_err(FrameError::Pin)?;
         let pose = pose.map_err(FrameError::Inference)?;
-        let mut report = FrameReport { inference_ns: inference_end.saturating_sub(start), ..FrameReport::default() };
+        let mut report = FrameReport {
+            inference_ns: inference_end.saturating_sub(start),
+            ..FrameReport::default()
+        };
         // Check every joint first so a short pose moves no servo at all.
         for s in &self.servos {
             if s.joint() >= pose.len() {
-                return Err(FrameError::PoseTooShort { joint: s.joint(), len: pose.len() });
+                return Err(FrameError::PoseTooShort {
+                    joint: s.joint(),
+                    len: pose.len(),
+                });
             }
         }
         for (i, s) in self.servos.iter_mut().enumerate() {
             let angle = pose.get(s.joint()).copied().unwrap_or(f32::NAN);
-            let (_, fate) = s.set_angle(angle).map_err(|error| FrameError::Pwm { servo: i, error })?;
+            let (_, fate) = s
+                .set_angle(angle)
+                .map_err(|error| FrameError::Pwm { servo: i, error })?;
             match fate {
                 AngleFate::Exact => {}
                 AngleFate::Clamped => report.clamped = report.clamped.saturating_add(1),

@@ -51,8 +51,12 @@ impl core::fmt::Display for CalibrationError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(match self {
             CalibrationError::NonFiniteAngle => "servo calibration has a NaN or infinite angle",
-            CalibrationError::EmptyAngleRange => "servo calibration: angle_min must be below angle_max",
-            CalibrationError::BadLimits => "servo calibration: limits reversed or outside the angle range",
+            CalibrationError::EmptyAngleRange => {
+                "servo calibration: angle_min must be below angle_max"
+            }
+            CalibrationError::BadLimits => {
+                "servo calibration: limits reversed or outside the angle range"
+            }
             CalibrationError::BadPulseRange => {
                 "servo calibration: need 0 < pulse_min < pulse_max <= period"
             }
@@ -90,17 +94,28 @@ impl ServoCalibration {
 
     /// Checks the calibration.
     pub fn validate(&self) -> Result<(), CalibrationError> {
-        let angles = [self.angle_min, self.angle_max, self.limit_min, self.limit_max];
+        let angles = [
+            self.angle_min,
+            self.angle_max,
+            self.limit_min,
+            self.limit_max,
+        ];
         if angles.iter().any(|a| !a.is_finite()) {
             return Err(CalibrationError::NonFiniteAngle);
         }
         if self.angle_min >= self.angle_max {
             return Err(CalibrationError::EmptyAngleRange);
         }
-        if self.limit_min > self.limit_max || self.limit_min < self.angle_min || self.limit_max > self.angle_max {
+        if self.limit_min > self.limit_max
+            || self.limit_min < self.angle_min
+            || self.limit_max > self.angle_max
+        {
             return Err(CalibrationError::BadLimits);
         }
-        if self.pulse_min_ns == 0 || self.pulse_min_ns >= self.pulse_max_ns || self.pulse_max_ns > self.period_ns {
+        if self.pulse_min_ns == 0
+            || self.pulse_min_ns >= self.pulse_max_ns
+            || self.pulse_max_ns > self.period_ns
+        {
             return Err(CalibrationError::BadPulseRange);
         }
         Ok(())
@@ -116,13 +131,18 @@ impl ServoCalibration {
         let width = (self.pulse_max_ns - self.pulse_min_ns) as f32;
         // `as u32` saturates; t is in [0, 1] so this is in [0, width].
         let offset = (t * width + 0.5) as u32;
-        self.pulse_min_ns.saturating_add(offset).min(self.pulse_max_ns)
+        self.pulse_min_ns
+            .saturating_add(offset)
+            .min(self.pulse_max_ns)
     }
 
     /// Pulse widths (ns) at the two limits, smaller first: every pulse this
     /// calibration produces lies within.
     pub fn pulse_range(&self) -> (u32, u32) {
-        let (a, b) = (self.pulse_for(self.limit_min), self.pulse_for(self.limit_max));
+        let (a, b) = (
+            self.pulse_for(self.limit_min),
+            self.pulse_for(self.limit_max),
+        );
         (a.min(b), a.max(b))
     }
 
@@ -137,7 +157,10 @@ impl ServoCalibration {
     /// Duty cycles at the two limits, smaller first: the calibrated range.
     pub fn duty_range(&self, max_duty: u16) -> (u16, u16) {
         let (lo, hi) = self.pulse_range();
-        (self.duty_for_pulse(lo, max_duty), self.duty_for_pulse(hi, max_duty))
+        (
+            self.duty_for_pulse(lo, max_duty),
+            self.duty_for_pulse(hi, max_duty),
+        )
     }
 
     /// Clamps `angle` to the limits: `None` for NaN.
@@ -176,9 +199,18 @@ pub struct Servo<S> {
 
 impl<S: SetDutyCycle> Servo<S> {
     /// A servo on `pwm`, driven by `pose[joint]`; refuses a bad calibration.
-    pub fn new(pwm: S, joint: usize, calibration: ServoCalibration) -> Result<Self, CalibrationError> {
+    pub fn new(
+        pwm: S,
+        joint: usize,
+        calibration: ServoCalibration,
+    ) -> Result<Self, CalibrationError> {
         calibration.validate()?;
-        Ok(Servo { pwm, calibration, joint, last_duty: None })
+        Ok(Servo {
+            pwm,
+            calibration,
+            joint,
+            last_duty: None,
+        })
     }
 
     /// Index of the pose angle this servo follows.
@@ -202,7 +234,11 @@ impl<S: SetDutyCycle> Servo<S> {
     pub fn set_angle(&mut self, angle: f32) -> Result<(u16, AngleFate), S::Error> {
         let max = self.pwm.max_duty_cycle();
         let (duty, fate) = match (self.calibration.clamp(angle), self.last_duty) {
-            (Some((a, fate)), _) => (self.calibration.duty_for_pulse(self.calibration.pulse_for(a), max), fate),
+            (Some((a, fate)), _) => (
+                self.calibration
+                    .duty_for_pulse(self.calibration.pulse_for(a), max),
+                fate,
+            ),
             (None, Some(last)) => (last, AngleFate::Held),
             (None, None) => (self.calibration.duty(f32::NAN, max), AngleFate::Held),
         };

@@ -1,6 +1,11 @@
 //! Host tests with embedded-hal-mock and proptest.
 
-#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing)]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 use std::cell::{Cell, RefCell};
 use std::rc::Rc;
@@ -68,14 +73,19 @@ impl SetDutyCycle for RecPwm {
 const PERIOD: u32 = 10_000_000; // 100 Hz
 
 fn pin_frames(n: usize) -> Vec<PinTx> {
-    (0..n).flat_map(|_| [PinTx::set(State::High), PinTx::set(State::Low)]).collect()
+    (0..n)
+        .flat_map(|_| [PinTx::set(State::High), PinTx::set(State::Low)])
+        .collect()
 }
 
 #[test]
 fn pin_is_high_exactly_around_each_inference_and_delays_keep_the_period() {
     let time = SimTime::default();
     let mut pin = PinMock::new(&pin_frames(3));
-    let delay = SimDelay { time: time.clone(), ..SimDelay::default() };
+    let delay = SimDelay {
+        time: time.clone(),
+        ..SimDelay::default()
+    };
     let pwm = PwmMock::new(&[
         PwmTx::max_duty_cycle(20_000),
         PwmTx::set_duty_cycle(1_500), // 0 degrees: 1.5 ms of 20 ms
@@ -113,12 +123,102 @@ fn pin_is_high_exactly_around_each_inference_and_delays_keep_the_period() {
     pin.done();
 }
 
+/// Everything the driver does, in order, to check the pin brackets the
+/// inference exactly and the servos and the sleep come after it.
+#[derive(Clone, Debug, PartialEq)]
+enum Event {
+    PinHigh,
+    PinLow,
+    Infer,
+    Duty(u16),
+    Sleep(u32),
+}
+
+#[derive(Clone, Default)]
+struct EventLog(Rc<RefCell<Vec<Event>>>);
+
+impl EventLog {
+    fn push(&self, e: Event) {
+        self.0.borrow_mut().push(e);
+    }
+}
+
+impl embedded_hal::digital::ErrorType for EventLog {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_hal::digital::OutputPin for EventLog {
+    fn set_high(&mut self) -> Result<(), Self::Error> {
+        self.push(Event::PinHigh);
+        Ok(())
+    }
+    fn set_low(&mut self) -> Result<(), Self::Error> {
+        self.push(Event::PinLow);
+        Ok(())
+    }
+}
+
+impl ErrorType for EventLog {
+    type Error = core::convert::Infallible;
+}
+
+impl SetDutyCycle for EventLog {
+    fn max_duty_cycle(&self) -> u16 {
+        20_000
+    }
+    fn set_duty_cycle(&mut self, duty: u16) -> Result<(), Self::Error> {
+        self.push(Event::Duty(duty));
+        Ok(())
+    }
+}
+
+impl DelayNs for EventLog {
+    fn delay_ns(&mut self, ns: u32) {
+        self.push(Event::Sleep(ns));
+    }
+}
+
+#[test]
+fn each_frame_is_pin_high_inference_pin_low_servos_sleep() {
+    let log = EventLog::default();
+    let servos = [
+        Servo::new(log.clone(), 0, ServoCalibration::HOBBY_DEGREES).unwrap(),
+        Servo::new(log.clone(), 1, ServoCalibration::HOBBY_DEGREES).unwrap(),
+    ];
+    let time = SimTime::default();
+    let mut d = FrameDriver::new(log.clone(), log.clone(), time.clone(), servos, PERIOD);
+    let pose = [45.0f32, -45.0];
+    for _ in 0..2 {
+        let (l, t) = (log.clone(), time.clone());
+        d.frame(|| -> Result<&[f32], ()> {
+            l.push(Event::Infer);
+            t.advance(1_000);
+            Ok(&pose)
+        })
+        .unwrap();
+        // This delay only logs: move simulated time through the sleep.
+        time.advance(u64::from(PERIOD) - 1_000);
+    }
+    let frame = [
+        Event::PinHigh,
+        Event::Infer,
+        Event::PinLow,
+        Event::Duty(1_750),
+        Event::Duty(1_250),
+        Event::Sleep(PERIOD - 1_000),
+    ];
+    assert_eq!(*log.0.borrow(), [frame.clone(), frame].concat());
+}
+
 #[test]
 fn checked_delay_sees_period_minus_work() {
     // The same with embedded-hal-mock's CheckedDelay: a fixed 2 ms inference.
     let time = SimTime::default();
     let mut pin = PinMock::new(&pin_frames(2));
-    let mut delay = CheckedDelay::new(&[DelayTx::delay_ns(PERIOD - 2_000_000), DelayTx::delay_ns(PERIOD - 2_000_000)]);
+    let mut delay = CheckedDelay::new(&[
+        DelayTx::delay_ns(PERIOD - 2_000_000),
+        DelayTx::delay_ns(PERIOD - 2_000_000),
+    ]);
     let servos: [Servo<PwmMock>; 0] = [];
     let mut d = FrameDriver::new(delay.clone(), pin.clone(), time.clone(), servos, PERIOD);
     for _ in 0..2 {
@@ -139,7 +239,10 @@ fn checked_delay_sees_period_minus_work() {
 fn an_overrun_does_not_sleep_and_restarts_the_schedule() {
     let time = SimTime::default();
     let mut pin = PinMock::new(&pin_frames(2));
-    let delay = SimDelay { time: time.clone(), ..SimDelay::default() };
+    let delay = SimDelay {
+        time: time.clone(),
+        ..SimDelay::default()
+    };
     let servos: [Servo<RecPwm>; 0] = [];
     let mut d = FrameDriver::new(delay.clone(), pin.clone(), time.clone(), servos, PERIOD);
     let t = time.clone();
@@ -165,11 +268,20 @@ fn an_overrun_does_not_sleep_and_restarts_the_schedule() {
 fn a_failed_inference_still_lowers_the_pin_and_moves_no_servo() {
     let time = SimTime::default();
     let mut pin = PinMock::new(&pin_frames(2));
-    let delay = SimDelay { time: time.clone(), ..SimDelay::default() };
-    let pwm = RecPwm { max: 1000, ..RecPwm::default() };
+    let delay = SimDelay {
+        time: time.clone(),
+        ..SimDelay::default()
+    };
+    let pwm = RecPwm {
+        max: 1000,
+        ..RecPwm::default()
+    };
     let servo = Servo::new(pwm.clone(), 3, ServoCalibration::HOBBY_DEGREES).unwrap();
     let mut d = FrameDriver::new(delay, pin.clone(), time, [servo], PERIOD);
-    assert_eq!(d.frame(|| -> Result<&[f32], &str> { Err("NaN input") }), Err(FrameError::Inference("NaN input")));
+    assert_eq!(
+        d.frame(|| -> Result<&[f32], &str> { Err("NaN input") }),
+        Err(FrameError::Inference("NaN input"))
+    );
     let short = [0.0f32; 2];
     assert_eq!(
         d.frame(|| -> Result<&[f32], &str> { Ok(&short) }),
@@ -190,7 +302,16 @@ fn pwm_errors_name_the_servo() {
     ]);
     let servo = Servo::new(bad, 0, ServoCalibration::HOBBY_DEGREES).unwrap();
     let time = SimTime::default();
-    let mut d = FrameDriver::new(SimDelay { time: time.clone(), ..SimDelay::default() }, pin.clone(), time, [servo], PERIOD);
+    let mut d = FrameDriver::new(
+        SimDelay {
+            time: time.clone(),
+            ..SimDelay::default()
+        },
+        pin.clone(),
+        time,
+        [servo],
+        PERIOD,
+    );
     let pose = [0.0f32];
     match d.frame(|| -> Result<&[f32], ()> { Ok(&pose) }) {
         Err(FrameError::Pwm { servo: 0, error }) => {
@@ -206,7 +327,12 @@ fn pwm_errors_name_the_servo() {
 
 #[test]
 fn calibration_maps_direction_limits_and_pulses() {
-    let c = ServoCalibration { reversed: true, limit_min: -45.0, limit_max: 60.0, ..ServoCalibration::HOBBY_DEGREES };
+    let c = ServoCalibration {
+        reversed: true,
+        limit_min: -45.0,
+        limit_max: 60.0,
+        ..ServoCalibration::HOBBY_DEGREES
+    };
     c.validate().unwrap();
     // Reversed: -90 would be 2 ms, +90 1 ms; limits -45 -> 1.75 ms, 60 -> 1.1667 ms.
     assert_eq!(c.pulse_range(), (1_166_667, 1_750_000));
@@ -219,25 +345,57 @@ fn calibration_maps_direction_limits_and_pulses() {
         f(&mut c);
         c.validate().unwrap_err()
     };
-    assert_eq!(bad(|c| c.angle_max = f32::NAN), CalibrationError::NonFiniteAngle);
-    assert_eq!(bad(|c| c.angle_max = c.angle_min), CalibrationError::EmptyAngleRange);
+    assert_eq!(
+        bad(|c| c.angle_max = f32::NAN),
+        CalibrationError::NonFiniteAngle
+    );
+    assert_eq!(
+        bad(|c| c.angle_max = c.angle_min),
+        CalibrationError::EmptyAngleRange
+    );
     assert_eq!(bad(|c| c.limit_max = 100.0), CalibrationError::BadLimits);
     assert_eq!(bad(|c| c.limit_min = -100.0), CalibrationError::BadLimits);
-    assert_eq!(bad(|c| { c.limit_min = 50.0; c.limit_max = 40.0 }), CalibrationError::BadLimits);
-    assert_eq!(bad(|c| c.pulse_max_ns = c.pulse_min_ns), CalibrationError::BadPulseRange);
-    assert_eq!(bad(|c| c.pulse_max_ns = c.period_ns + 1), CalibrationError::BadPulseRange);
-    assert!(Servo::new(RecPwm::default(), 0, ServoCalibration { limit_min: 99.0, ..ServoCalibration::HOBBY_DEGREES }).is_err());
+    assert_eq!(
+        bad(|c| {
+            c.limit_min = 50.0;
+            c.limit_max = 40.0
+        }),
+        CalibrationError::BadLimits
+    );
+    assert_eq!(
+        bad(|c| c.pulse_max_ns = c.pulse_min_ns),
+        CalibrationError::BadPulseRange
+    );
+    assert_eq!(
+        bad(|c| c.pulse_max_ns = c.period_ns + 1),
+        CalibrationError::BadPulseRange
+    );
+    assert!(Servo::new(
+        RecPwm::default(),
+        0,
+        ServoCalibration {
+            limit_min: 99.0,
+            ..ServoCalibration::HOBBY_DEGREES
+        }
+    )
+    .is_err());
 }
 
 #[test]
 fn nan_holds_the_previous_position() {
-    let pwm = RecPwm { max: 20_000, ..RecPwm::default() };
+    let pwm = RecPwm {
+        max: 20_000,
+        ..RecPwm::default()
+    };
     let mut s = Servo::new(pwm.clone(), 0, ServoCalibration::HOBBY_DEGREES).unwrap();
     // NaN first: the midpoint of the limits.
     assert_eq!(s.set_angle(f32::NAN).unwrap(), (1_500, AngleFate::Held));
     assert_eq!(s.set_angle(45.0).unwrap(), (1_750, AngleFate::Exact));
     assert_eq!(s.set_angle(-f32::NAN).unwrap(), (1_750, AngleFate::Held));
-    assert_eq!(s.set_angle(f32::NEG_INFINITY).unwrap(), (1_000, AngleFate::Clamped));
+    assert_eq!(
+        s.set_angle(f32::NEG_INFINITY).unwrap(),
+        (1_000, AngleFate::Clamped)
+    );
     assert_eq!(*pwm.duties.borrow(), vec![1_500, 1_750, 1_750, 1_000]);
 }
 

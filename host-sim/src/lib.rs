@@ -8,3 +8,4 @@ pub mod demo;
 pub mod eval;
 pub mod golden;
 pub mod npy;
+pub mod target;

@@ -104,6 +104,27 @@ enum Command {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Run a blob on the Cortex-M4 firmware under QEMU, bit for bit against the host runtime.
+    Target {
+        /// The model blob, flashed at the MODEL region on its own.
+        #[arg(long)]
+        model: PathBuf,
+        /// Frames to run (default: all golden frames, or 16 generated ones).
+        #[arg(long)]
+        frames: Option<usize>,
+        /// float32 (N, inputs) raw inputs in model units.
+        #[arg(long, requires = "phases")]
+        inputs: Option<PathBuf>,
+        /// float32 (N,) phases in radians.
+        #[arg(long, requires = "inputs")]
+        phases: Option<PathBuf>,
+    },
+    /// Check the firmware's log snapshots (firmware/snapshots), or bless new ones.
+    FirmwareSnapshots {
+        /// Write the current logs as the expected ones.
+        #[arg(long)]
+        overwrite: bool,
+    },
     /// Check (default) or rewrite the golden vectors of the default model.
     Golden {
         /// The golden directory.
@@ -219,6 +240,17 @@ fn run(cli: Cli) -> Result<()> {
             );
             if let Some(path) = json {
                 exporter::atomic::write_atomic(&path, &serde_json::to_vec_pretty(&a)?)?;
+            }
+            Ok(())
+        }
+        Command::Target { model, frames, inputs, phases } => {
+            host_sim::target::run_target(&host_sim::target::TargetArgs { model, frames, inputs, phases })?;
+            Ok(())
+        }
+        Command::FirmwareSnapshots { overwrite } => {
+            let outcomes = host_sim::target::snapshot::run_snapshots(overwrite)?;
+            for (name, outcome) in &outcomes {
+                println!("{name}: {outcome:?}");
             }
             Ok(())
         }
