@@ -4,7 +4,14 @@
 //! a message, where the weights are absent.
 
 use host_sim::accuracy::{measure, sample_matrix};
+use std::io::Write;
 use std::path::{Path, PathBuf};
+
+/// Says why a test did nothing, on stderr directly, so that it shows even
+/// though the test harness captures `println!`/`eprintln!` of passing tests.
+fn skip(why: &str) {
+    let _ = writeln!(std::io::stderr(), "skipped: {why}");
+}
 
 fn pfnn_dir() -> Option<PathBuf> {
     let dir = std::env::var_os("PHASEGATE_PFNN_DIR")
@@ -13,10 +20,7 @@ fn pfnn_dir() -> Option<PathBuf> {
     if dir.join("Xmean.bin").is_file() {
         Some(dir)
     } else {
-        eprintln!(
-            "skipped: real PFNN weights not found at {} (set PHASEGATE_PFNN_DIR)",
-            dir.display()
-        );
+        skip(&format!("real PFNN weights not found at {} (set PHASEGATE_PFNN_DIR)", dir.display()));
         None
     }
 }
@@ -84,7 +88,7 @@ fn python_with_numpy() -> bool {
 fn float_reference_matches_independent_numpy() {
     let Some(dir) = pfnn_dir() else { return };
     if !python_with_numpy() {
-        eprintln!("skipped: python3 with numpy not available");
+        skip("python3 with numpy not available");
         return;
     }
     let tables = exporter::pfnn_dir::load_pfnn_dir(&dir).unwrap();

@@ -5,6 +5,15 @@
 //! refused at load; buffers too big for RAM fail to link), bad blobs, and
 //! the defmt log snapshots.
 
+/// Straight to stderr: the harness swallows println! of passing tests, and a
+/// skip must be visible.
+macro_rules! eprintln_direct {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($t)*);
+    }};
+}
+
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -14,7 +23,7 @@ fn qemu_or_skip(test: &str) -> bool {
     if qemu_available() {
         true
     } else {
-        println!("SKIPPED {test}: qemu-system-arm not found (apt-get install qemu-system-arm)");
+        eprintln_direct!("SKIPPED {test}: qemu-system-arm not found (apt-get install qemu-system-arm)");
         false
     }
 }
@@ -405,7 +414,7 @@ fn real_pfnn_int8_cubic_is_bit_exact_on_the_target() {
         .join("pfnn")
         .join("network");
     if !dir.exists() {
-        println!("SKIPPED {name}: no real PFNN at {}", dir.display());
+        eprintln_direct!("SKIPPED {name}: no real PFNN at {}", dir.display());
         return;
     }
     if !qemu_or_skip(name) {
