@@ -103,7 +103,9 @@ fn read_header(bytes: &[u8]) -> Result<(Header, usize)> {
 /// the blob inside a larger flash region.
 pub fn blob_len_from_prefix(prefix: &[u8]) -> Result<usize> {
     let (header, payload_start) = read_header(prefix)?;
-    Ok(payload_start + header.payload_len as usize)
+    payload_start
+        .checked_add(header.payload_len as usize)
+        .ok_or(truncated(usize::MAX, prefix.len()))
 }
 
 impl<'a> Framed<'a> {
@@ -118,7 +120,9 @@ impl<'a> Framed<'a> {
         if padding.iter().skip(header_len).any(|&b| b != 0) {
             return Err(Error::HeaderMalformed);
         }
-        let blob_len = payload_start + header.payload_len as usize;
+        let blob_len = payload_start
+            .checked_add(header.payload_len as usize)
+            .ok_or(truncated(usize::MAX, bytes.len()))?;
         let payload = bytes
             .get(payload_start..blob_len)
             .ok_or(truncated(blob_len, bytes.len()))?;
