@@ -3,9 +3,13 @@
 
 pub mod accuracy;
 pub mod compare;
+pub mod controller;
 pub mod default_model;
 pub mod demo;
 pub mod eval;
 pub mod golden;
 pub mod npy;
+pub mod render;
+pub mod rollout;
+pub mod style;
 pub mod target;

@@ -96,6 +96,50 @@ pub enum Error {
         /// Index of the first offending value.
         index: u32,
     },
+    /// The blob is a style (adapter) blob where a model was expected.
+    NotAModel,
+    /// The blob is a model where a style (adapter) blob was expected.
+    NotAStyle,
+    /// The style was built for another base model: its recorded base CRC
+    /// differs from the base blob's payload CRC.
+    StyleMismatch {
+        /// Payload CRC-32 of the base model in use.
+        base_crc: u32,
+        /// Base CRC-32 the style was built for.
+        style_crc: u32,
+    },
+    /// The style's adapter does not fit the base model's layer (index,
+    /// dimensions, gating or output formats differ).
+    StyleIncompatible {
+        /// Base layer the style targets.
+        layer: u8,
+    },
+    /// The style bank is full.
+    TooManyStyles {
+        /// Styles the runtime holds at most.
+        capacity: u32,
+    },
+    /// A style index that was never returned by `add_style`.
+    UnknownStyle {
+        /// The index given.
+        index: u32,
+    },
+    /// A controller command holds NaN or an infinity; the frame is refused
+    /// and the controller's state is unchanged. (Finite out-of-range values
+    /// are clamped instead.)
+    BadCommand {
+        /// The field, numbered as in `controller::field`: 0-1 velocity,
+        /// 2-3 facing, 4-7 gait stand, walk, jog, crouch.
+        field: u8,
+    },
+    /// The model is not PFNN-shaped (342 inputs, 311 outputs), so the
+    /// locomotion controller cannot drive it.
+    NotPfnn {
+        /// Inputs of the model.
+        inputs: u32,
+        /// Outputs of the model.
+        outputs: u32,
+    },
 }
 
 /// Result with the runtime's [`Error`].
@@ -149,6 +193,33 @@ impl fmt::Display for Error {
                 write!(f, "slice length {found}, model needs {expected}")
             }
             Error::NonFinite { index } => write!(f, "value {index} is NaN or infinite"),
+            Error::BadCommand { field } => {
+                write!(f, "controller command field {field} is NaN or infinite")
+            }
+            Error::NotPfnn { inputs, outputs } => write!(
+                f,
+                "model has {inputs} inputs and {outputs} outputs; a PFNN controller needs 342 and 311"
+            ),
+            Error::NotAModel => {
+                f.write_str("blob is a style (adapter) blob, not a model: load it as a style")
+            }
+            Error::NotAStyle => f.write_str("blob is a model, not a style (adapter) blob"),
+            Error::StyleMismatch {
+                base_crc,
+                style_crc,
+            } => write!(
+                f,
+                "style was built for the base model with payload CRC {style_crc:#010x}, \
+                 but the base model in use has payload CRC {base_crc:#010x}"
+            ),
+            Error::StyleIncompatible { layer } => write!(
+                f,
+                "style adapter does not fit layer {layer} of the base model"
+            ),
+            Error::TooManyStyles { capacity } => {
+                write!(f, "style bank full: it holds at most {capacity} styles")
+            }
+            Error::UnknownStyle { index } => write!(f, "no style with index {index}"),
         }
     }
 }

@@ -22,11 +22,13 @@
 )]
 
 pub mod blob;
+pub mod controller;
 mod error;
 pub mod fixed;
 pub mod kernels;
 mod model;
 mod runtime;
+pub mod style;
 
 pub use blob::{blob_len_from_prefix, Header};
 pub use error::{Error, Result};
@@ -34,3 +36,4 @@ pub use fixed::gate::Gate;
 pub use fixed::phase::Phase;
 pub use model::{macs, max_width, ram_bytes, Model, STAGE};
 pub use runtime::Runtime;
+pub use style::{Mix, Style, StyleId, StyledRuntime};

@@ -2,13 +2,15 @@
 
 use crate::blob::records::stage_record;
 use crate::blob::{
-    AccWidth, Activation, Framed, Gating, Header, LayerDesc, Requant, Section, REQUANT_RECORD_LEN,
-    STAGE_RECORD_LEN,
+    AccWidth, Activation, Framed, Gating, Header, LayerDesc, LayerOp, ModelKind, Requant, Section,
+    REQUANT_RECORD_LEN, STAGE_RECORD_LEN,
 };
 use crate::error::{Error, Result};
 use crate::fixed::gate::Gate;
 use crate::fixed::phase::Phase;
+use crate::kernels::cp::MID_RECORD_LEN;
 use crate::kernels::dense::DenseLayer;
+use crate::kernels::layer::Kernel;
 
 /// Layer index used in errors about the input and output stages.
 pub const STAGE: u8 = 255;
@@ -93,9 +95,13 @@ impl<'a> Model<'a> {
         Gate::new(&self.header.gating, phase)
     }
 
-    /// Layer `i` with its sections.
+    /// Dense layer `i` with its sections (`None` for other ops: see
+    /// [`Model::kernel`]).
     pub fn layer(&self, i: usize) -> Option<DenseLayer<'a>> {
         let desc = *self.header.layers.get(i)?;
+        if desc.op != LayerOp::Dense {
+            return None;
+        }
         Some(DenseLayer {
             desc,
             weights: section(self.payload, desc.weight_section)?,
@@ -103,6 +109,17 @@ impl<'a> Model<'a> {
             requant: section(self.payload, desc.requant_section)?,
             index: i as u8,
         })
+    }
+
+    /// Layer `i` of any op (dense, CP, diagonal), ready to run.
+    pub fn kernel(&self, i: usize) -> Option<Kernel<'a>> {
+        let desc = *self.header.layers.get(i)?;
+        Kernel::new(self.payload, desc, i as u8)
+    }
+
+    /// The payload bytes (CRC verified).
+    pub fn payload(&self) -> &'a [u8] {
+        self.payload
     }
 
     /// Number of layers.
@@ -122,6 +139,9 @@ impl<'a> Model<'a> {
 
     fn validate(&self) -> Result<()> {
         let h = &self.header;
+        if matches!(h.kind, ModelKind::Style { .. }) {
+            return Err(Error::NotAModel);
+        }
         let gated_experts = validate_gating(&h.gating)?;
         if h.layers.is_empty() || h.input_dim == 0 || h.output_dim == 0 {
             return Err(Error::UnsupportedParameter { layer: STAGE });
@@ -136,7 +156,7 @@ impl<'a> Model<'a> {
             if l.experts != want {
                 return Err(Error::GatingMismatch { layer: li });
             }
-            self.validate_sections(li, l)?;
+            validate_sections(self.payload, li, l)?;
             width = l.out_dim;
         }
         if width != h.output_dim {
@@ -151,28 +171,8 @@ impl<'a> Model<'a> {
         {
             return Err(Error::HeaderInconsistent);
         }
-        for i in 0..h.layers.len() {
-            self.validate_layer_values(i)?;
-        }
-        Ok(())
-    }
-
-    fn validate_sections(&self, li: u8, l: &LayerDesc) -> Result<()> {
-        let experts = u64::from(l.experts);
-        let (out, inp) = (u64::from(l.out_dim), u64::from(l.in_dim));
-        let want = [
-            (
-                l.weight_section,
-                experts * out * inp * l.weights.bytes() as u64,
-            ),
-            (l.bias_section, experts * out * l.acc.bytes() as u64),
-            (l.requant_section, out * REQUANT_RECORD_LEN as u64),
-        ];
-        for (s, len) in want {
-            check_section(self.payload, s, li)?;
-            if u64::from(s.len) != len {
-                return Err(Error::SectionLength { layer: li });
-            }
+        for (i, l) in h.layers.iter().enumerate() {
+            validate_values(self.payload, &h.gating, l, i as u8)?;
         }
         Ok(())
     }
@@ -187,36 +187,102 @@ impl<'a> Model<'a> {
         }
         Ok(())
     }
+}
 
-    /// Requantisation records in range, and for 32-bit accumulators the
-    /// proof that no row can overflow: `sum |w| * 2^15 <= i32::MAX`
-    /// (activations are i16, so |x| <= 2^15 whatever the input).
-    fn validate_layer_values(&self, i: usize) -> Result<()> {
-        let li = i as u8;
-        let layer = self
-            .layer(i)
-            .ok_or(Error::SectionOutOfBounds { layer: li })?;
-        for rec in layer.requant.as_chunks::<REQUANT_RECORD_LEN>().0 {
-            let r = Requant::from_bytes(rec).ok_or(Error::UnsupportedParameter { layer: li })?;
-            let elu_frac_bad = layer.desc.activation == Activation::Elu && r.frac > 15;
-            if r.pre_shift > Requant::MAX_SHIFT || r.post_shift > Requant::MAX_SHIFT || elu_frac_bad
-            {
-                return Err(Error::UnsupportedParameter { layer: li });
-            }
-        }
-        if layer.desc.acc != AccWidth::I32 {
-            return Ok(());
-        }
-        let rows = usize::from(layer.desc.experts) * usize::from(layer.desc.out_dim);
-        for r in 0..rows {
-            let l1 = row_l1(&layer, r).ok_or(Error::SectionLength { layer: li })?;
-            if l1 << 15 > i32::MAX as u64 {
-                let row = (r % usize::from(layer.desc.out_dim.max(1))) as u16;
-                return Err(Error::AccumulatorOverflow { layer: li, row });
+/// Checks that every section of layer `l` lies in the payload, is aligned
+/// and has the length its dimensions imply.
+pub(crate) fn validate_sections(payload: &[u8], li: u8, l: &LayerDesc) -> Result<()> {
+    let experts = u64::from(l.experts);
+    let (out, inp) = (u64::from(l.out_dim), u64::from(l.in_dim));
+    let wb = l.weights.bytes() as u64;
+    let common = [
+        (l.bias_section, experts * out * l.acc.bytes() as u64),
+        (l.requant_section, out * REQUANT_RECORD_LEN as u64),
+    ];
+    let check = |list: &[(Section, u64)]| -> Result<()> {
+        for &(s, len) in list {
+            check_section(payload, s, li)?;
+            if u64::from(s.len) != len {
+                return Err(Error::SectionLength { layer: li });
             }
         }
         Ok(())
+    };
+    match l.op {
+        LayerOp::Dense => {
+            check(&[(l.weight_section, experts * out * inp * wb)])?;
+        }
+        LayerOp::Cp {
+            rank,
+            a,
+            cores,
+            mid,
+        } => {
+            if rank == 0 {
+                return Err(Error::UnsupportedParameter { layer: li });
+            }
+            let r = u64::from(rank);
+            check(&[
+                (l.weight_section, r * inp * wb),
+                (a, out * r * wb),
+                (cores, experts * r * 2),
+                (mid, r * MID_RECORD_LEN as u64),
+            ])?;
+        }
+        LayerOp::Diagonal => {
+            if l.in_dim != l.out_dim {
+                return Err(Error::DimensionMismatch { layer: li });
+            }
+            check(&[(l.weight_section, experts * out * wb)])?;
+        }
     }
+    check(&common)
+}
+
+/// Value checks of a layer: requantisation records in range, and the
+/// overflow proof. Dense layers with 32-bit accumulators: `sum |w| * 2^15
+/// <= i32::MAX` for every row (activations are i16, so |x| <= 2^15 whatever
+/// the input); CP layers: see [`crate::kernels::cp::CpLayer::check`];
+/// diagonal layers need none (`|w x| <= 2^30`).
+pub(crate) fn validate_values(
+    payload: &[u8],
+    gating: &Gating,
+    l: &LayerDesc,
+    li: u8,
+) -> Result<()> {
+    let kernel = Kernel::new(payload, *l, li).ok_or(Error::SectionOutOfBounds { layer: li })?;
+    match kernel {
+        Kernel::Cp(cp) => cp.check(gating),
+        Kernel::Diagonal(d) => check_requant(d.requant, l.activation, li),
+        Kernel::Dense(d) => {
+            check_requant(d.requant, l.activation, li)?;
+            if l.acc != AccWidth::I32 {
+                return Ok(());
+            }
+            let rows = usize::from(l.experts) * usize::from(l.out_dim);
+            for r in 0..rows {
+                let l1 = row_l1(&d, r).ok_or(Error::SectionLength { layer: li })?;
+                if l1 << 15 > i32::MAX as u64 {
+                    let row = (r % usize::from(l.out_dim.max(1))) as u16;
+                    return Err(Error::AccumulatorOverflow { layer: li, row });
+                }
+            }
+            Ok(())
+        }
+    }
+}
+
+/// Requantisation records in range: reserved byte zero, shifts at most
+/// [`Requant::MAX_SHIFT`], ELU formats at most Q15.
+fn check_requant(requant: &[u8], activation: Activation, li: u8) -> Result<()> {
+    for rec in requant.as_chunks::<REQUANT_RECORD_LEN>().0 {
+        let r = Requant::from_bytes(rec).ok_or(Error::UnsupportedParameter { layer: li })?;
+        let elu_frac_bad = activation == Activation::Elu && r.frac > 15;
+        if r.pre_shift > Requant::MAX_SHIFT || r.post_shift > Requant::MAX_SHIFT || elu_frac_bad {
+            return Err(Error::UnsupportedParameter { layer: li });
+        }
+    }
+    Ok(())
 }
 
 /// `sum |w|` of flat row `r` (expert-major).
@@ -238,7 +304,7 @@ fn row_l1(layer: &DenseLayer<'_>, r: usize) -> Option<u64> {
     })
 }
 
-fn validate_gating(g: &Gating) -> Result<u16> {
+pub(crate) fn validate_gating(g: &Gating) -> Result<u16> {
     let ok = match *g {
         Gating::Single => true,
         Gating::Constant { tables } | Gating::Linear { tables } => tables >= 1,
@@ -271,11 +337,18 @@ fn stage(payload: &[u8], s: Section) -> impl Iterator<Item = (f32, f32)> + '_ {
         .map(stage_record)
 }
 
-/// Widest activation vector of the network (input included).
+/// Widest activation vector of the network (input included; the middle
+/// vector of a CP layer counts too).
 pub fn max_width(layers: &[LayerDesc]) -> usize {
     layers
         .iter()
-        .map(|l| usize::from(l.in_dim.max(l.out_dim)))
+        .map(|l| {
+            let rank = match l.op {
+                LayerOp::Cp { rank, .. } => rank,
+                _ => 0,
+            };
+            usize::from(l.in_dim.max(l.out_dim).max(rank))
+        })
         .max()
         .unwrap_or(0)
 }
@@ -285,13 +358,20 @@ pub fn ram_bytes(layers: &[LayerDesc]) -> usize {
     2 * max_width(layers) * core::mem::size_of::<i16>()
 }
 
-/// Multiply-accumulates per frame: active experts x in x out, summed.
+/// Multiply-accumulates per frame, summed over the layers: dense
+/// `active x in x out`; CP `rank x (in + out + active)` (the two factor
+/// products and the core blend); diagonal `active x out`.
 pub fn macs(gating: &Gating, layers: &[LayerDesc]) -> u64 {
     layers
         .iter()
         .map(|l| {
-            let active = if l.gated { gating.active() } else { 1 };
-            active as u64 * u64::from(l.in_dim) * u64::from(l.out_dim)
+            let active = if l.gated { gating.active() } else { 1 } as u64;
+            let (inp, out) = (u64::from(l.in_dim), u64::from(l.out_dim));
+            match l.op {
+                LayerOp::Dense => active * inp * out,
+                LayerOp::Cp { rank, .. } => u64::from(rank) * (inp + out + active),
+                LayerOp::Diagonal => active * out,
+            }
         })
         .sum()
 }

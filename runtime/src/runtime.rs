@@ -59,9 +59,9 @@ impl<'a, const W: usize> Runtime<'a, W> {
     /// network, writes de-quantised outputs (model units) to `output`.
     pub fn run(&mut self, phase: Phase, input: &[f32], output: &mut [f32]) -> Result<()> {
         check_len(self.model.output_dim(), output.len())?;
-        let model = self.model.clone();
-        self.clipped = quantise_into(&model, input, &mut self.a)?;
-        let q = self.forward(phase)?;
+        let Runtime { model, a, b, clipped } = self;
+        *clipped = quantise_into(model, input, a)?;
+        let q = forward(model, a, b, phase)?;
         for ((o, &v), (scale, offset)) in output.iter_mut().zip(q).zip(model.output_stage()) {
             *o = f32::from(v) * scale + offset;
         }
@@ -93,28 +93,41 @@ impl<'a, const W: usize> Runtime<'a, W> {
     }
 
     fn forward(&mut self, phase: Phase) -> Result<&[i16]> {
-        let gate = self.model.gate(phase);
-        let mut src = &mut self.a;
-        let mut dst = &mut self.b;
-        for i in 0..self.model.layer_count() {
-            let layer = self
-                .model
-                .layer(i)
-                .ok_or(Error::SectionOutOfBounds { layer: i as u8 })?;
-            let g = if layer.desc.gated {
-                gate
-            } else {
-                crate::fixed::gate::Gate::SINGLE
-            };
-            layer.run(&g, &src[..], &mut dst[..])?;
-            core::mem::swap(&mut src, &mut dst);
-        }
-        let n = self.model.output_dim();
-        src.get(..n).ok_or(buffer_error(n, W))
+        forward(&self.model, &mut self.a, &mut self.b, phase)
     }
 }
 
-fn check_len(expected: usize, found: usize) -> Result<()> {
+/// Runs every layer, ping-ponging between `a` (which holds the quantised
+/// input) and `b`; returns the output slice. A free function over the
+/// fields so `run` can read the model's output stage while it holds the
+/// result, without copying the model.
+fn forward<'s, const W: usize>(
+    model: &Model<'_>,
+    a: &'s mut [i16; W],
+    b: &'s mut [i16; W],
+    phase: Phase,
+) -> Result<&'s [i16]> {
+    let gate = model.gate(phase);
+    let mut src = a;
+    let mut dst = b;
+    for i in 0..model.layer_count() {
+        let layer = model
+            .kernel(i)
+            .ok_or(Error::SectionOutOfBounds { layer: i as u8 })?;
+        let g = if layer.desc().gated {
+            gate
+        } else {
+            crate::fixed::gate::Gate::SINGLE
+        };
+        if layer.run_pingpong(&g, &mut src[..], &mut dst[..])? {
+            core::mem::swap(&mut src, &mut dst);
+        }
+    }
+    let n = model.output_dim();
+    src.get(..n).ok_or(buffer_error(n, W))
+}
+
+pub(crate) fn check_len(expected: usize, found: usize) -> Result<()> {
     if expected == found {
         Ok(())
     } else {
@@ -141,7 +154,7 @@ fn round_to_i16(v: f32) -> i16 {
 }
 
 /// Quantises `input` into `out`; returns how many values were clipped.
-fn quantise_into(model: &Model<'_>, input: &[f32], out: &mut [i16]) -> Result<u32> {
+pub(crate) fn quantise_into(model: &Model<'_>, input: &[f32], out: &mut [i16]) -> Result<u32> {
     check_len(model.input_dim(), input.len())?;
     let capacity = out.len();
     let out = out

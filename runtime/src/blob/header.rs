@@ -19,7 +19,21 @@ pub enum ModelKind {
     Pfnn,
     /// A plain phase-free MLP.
     Mlp,
+    /// A style: residual adapters for one base model, loaded beside it
+    /// (see `docs/cp-and-styles.md`). Its header's single layer is the
+    /// adapter; `input_stage` and `output_stage` are empty.
+    Style {
+        /// `payload_crc` of the base blob this style was built for.
+        base_crc: u32,
+        /// Index of the base layer whose pre-activation the adapter adds to.
+        layer: u8,
+        /// The style's name, UTF-8, at most [`MAX_STYLE_NAME`] bytes.
+        name: Section,
+    },
 }
+
+/// Longest style name, bytes.
+pub const MAX_STYLE_NAME: usize = 64;
 
 /// How the gate coefficients of the experts are computed from the phase.
 #[derive(Clone, Copy, Debug, Eq, PartialEq, Serialize, Deserialize)]
@@ -124,6 +138,22 @@ pub enum Activation {
 pub enum LayerOp {
     /// Dense weights, one `out x in` matrix per expert.
     Dense,
+    /// CP-decomposed weights `W_k = A diag(d_k) B^T`, computed as
+    /// `A ((sum_k g_k d_k) . (B^T x))` without forming `W`. `weight_section`
+    /// holds `B^T` (`rank x in_dim`, row-major, `weights` format).
+    Cp {
+        /// Number of rank-one components `R`.
+        rank: u16,
+        /// `A`: `out_dim x rank`, row-major, `weights` format.
+        a: Section,
+        /// Cores `d_k`: `experts x rank` i16, little-endian.
+        cores: Section,
+        /// `rank` middle records, 8 bytes each (see `kernels::cp::MidRecord`).
+        mid: Section,
+    },
+    /// Diagonal weights (`in_dim == out_dim`): `y_i = w_ki x_i`;
+    /// `weight_section` holds `experts x out_dim` weights.
+    Diagonal,
 }
 
 /// A byte range of the payload (offsets are from the payload's first byte).

@@ -19,6 +19,6 @@ pub use framing::{
 };
 pub use header::{
     AccWidth, Activation, Gating, Header, LayerDesc, LayerOp, ModelKind, Section, WeightFormat,
-    MAX_LAYERS,
+    MAX_LAYERS, MAX_STYLE_NAME,
 };
 pub use records::{Requant, REQUANT_RECORD_LEN, STAGE_RECORD_LEN};

@@ -1,0 +1,274 @@
+//! Lays out blobs whose layers may be dense, CP or diagonal, and style
+//! blobs. Dense-only models keep going through [`crate::blob_writer`]
+//! (whose output the golden vectors pin); this writer adds the sections of
+//! the newer layer ops and the style header. Both share the framing
+//! ([`crate::blob_writer::frame`]).
+
+use phasegate::blob::{
+    crc32, AccWidth, Gating, Header, LayerDesc, LayerOp, ModelKind, Requant, Section, WeightFormat,
+    MAX_LAYERS, MAX_STYLE_NAME,
+};
+use phasegate::kernels::cp::MidRecord;
+
+use crate::blob_writer::{frame, EncodeError};
+
+/// The extra arrays of a CP layer.
+#[derive(Clone, Debug, PartialEq)]
+pub struct QCp {
+    /// `A`: `out x rank` integer weights.
+    pub a: Vec<i32>,
+    /// `experts x rank` cores.
+    pub cores: Vec<i16>,
+    /// `rank` middle records.
+    pub mid: Vec<MidRecord>,
+}
+
+/// One quantised layer of any op.
+#[derive(Clone, Debug, PartialEq)]
+pub struct QLayer {
+    /// Descriptor; sections are filled in by [`encode_net`]. For CP layers
+    /// `op` carries the rank.
+    pub desc: LayerDesc,
+    /// Dense: `experts x out x in`; CP: `B^T` (`rank x in`); diagonal:
+    /// `experts x out`.
+    pub weights: Vec<i32>,
+    /// `experts x out` biases in accumulator units.
+    pub bias: Vec<i64>,
+    /// `out` requantisation records.
+    pub requant: Vec<Requant>,
+    /// CP arrays (CP layers only).
+    pub cp: Option<QCp>,
+}
+
+/// What kind of blob to write.
+#[derive(Clone, Debug, PartialEq)]
+pub enum QKind {
+    /// A runnable model of this kind (`Pfnn` or `Mlp`).
+    Model(ModelKind),
+    /// A style for the base with payload CRC `base_crc`, beside base layer
+    /// `layer`.
+    Style {
+        /// Base payload CRC.
+        base_crc: u32,
+        /// Base layer index.
+        layer: u8,
+        /// Name (UTF-8, at most [`MAX_STYLE_NAME`] bytes).
+        name: String,
+    },
+}
+
+/// A quantised model or style, ready to encode.
+#[derive(Clone, Debug, PartialEq)]
+pub struct QModel {
+    /// Model or style.
+    pub kind: QKind,
+    /// Gating.
+    pub gating: Gating,
+    /// `(offset, scale)` per input (empty for styles).
+    pub input_stage: Vec<(f32, f32)>,
+    /// `(scale, offset)` per output (empty for styles).
+    pub output_stage: Vec<(f32, f32)>,
+    /// Layers (exactly one, the adapter, for styles).
+    pub layers: Vec<QLayer>,
+}
+
+struct Payload(Vec<u8>);
+
+impl Payload {
+    fn push(&mut self, bytes: &[u8]) -> Result<Section, EncodeError> {
+        while !self.0.len().is_multiple_of(4) {
+            self.0.push(0);
+        }
+        let offset = u32::try_from(self.0.len()).map_err(|_| EncodeError::TooLarge("payload"))?;
+        let len = u32::try_from(bytes.len()).map_err(|_| EncodeError::TooLarge("section"))?;
+        self.0.extend_from_slice(bytes);
+        Ok(Section { offset, len })
+    }
+}
+
+fn weight_bytes(
+    w: &[i32],
+    format: WeightFormat,
+    n: usize,
+    layer: usize,
+    what: &'static str,
+) -> Result<Vec<u8>, EncodeError> {
+    if w.len() != n {
+        return Err(EncodeError::Length { layer, what });
+    }
+    let bad = || EncodeError::OutOfRange { layer, what };
+    let mut out = Vec::with_capacity(n * format.bytes());
+    for &v in w {
+        match format {
+            WeightFormat::I8 if v.abs() <= 127 => out.push(v as i8 as u8),
+            WeightFormat::I16 if v.abs() <= 32767 => out.extend((v as i16).to_le_bytes()),
+            _ => return Err(bad()),
+        }
+    }
+    Ok(out)
+}
+
+fn bias_bytes(l: &QLayer, i: usize) -> Result<Vec<u8>, EncodeError> {
+    let d = &l.desc;
+    if l.bias.len() != usize::from(d.experts) * usize::from(d.out_dim) {
+        return Err(EncodeError::Length {
+            layer: i,
+            what: "bias",
+        });
+    }
+    let mut out = Vec::new();
+    for &b in &l.bias {
+        match d.acc {
+            AccWidth::I32 => out.extend(
+                i32::try_from(b)
+                    .map_err(|_| EncodeError::OutOfRange {
+                        layer: i,
+                        what: "bias",
+                    })?
+                    .to_le_bytes(),
+            ),
+            AccWidth::I64 => out.extend(b.to_le_bytes()),
+        }
+    }
+    Ok(out)
+}
+
+fn stage_bytes(records: &[(f32, f32)]) -> Vec<u8> {
+    records
+        .iter()
+        .flat_map(|(a, b)| a.to_le_bytes().into_iter().chain(b.to_le_bytes()))
+        .collect()
+}
+
+fn layer_sections(payload: &mut Payload, l: &QLayer, i: usize) -> Result<LayerDesc, EncodeError> {
+    let d = l.desc;
+    let (experts, out, inp) = (
+        usize::from(d.experts),
+        usize::from(d.out_dim),
+        usize::from(d.in_dim),
+    );
+    if l.requant.len() != out {
+        return Err(EncodeError::Length {
+            layer: i,
+            what: "requant",
+        });
+    }
+    let mut desc = d;
+    match d.op {
+        LayerOp::Dense => {
+            desc.weight_section = payload.push(&weight_bytes(
+                &l.weights,
+                d.weights,
+                experts * out * inp,
+                i,
+                "weights",
+            )?)?;
+        }
+        LayerOp::Diagonal => {
+            desc.weight_section = payload.push(&weight_bytes(
+                &l.weights,
+                d.weights,
+                experts * out,
+                i,
+                "weights",
+            )?)?;
+        }
+        LayerOp::Cp { rank, .. } => {
+            let r = usize::from(rank);
+            let cp = l.cp.as_ref().ok_or(EncodeError::Length {
+                layer: i,
+                what: "cp factors",
+            })?;
+            if cp.cores.len() != experts * r || cp.mid.len() != r {
+                return Err(EncodeError::Length {
+                    layer: i,
+                    what: "cores",
+                });
+            }
+            let bt = payload.push(&weight_bytes(&l.weights, d.weights, r * inp, i, "B")?)?;
+            let a = payload.push(&weight_bytes(&cp.a, d.weights, out * r, i, "A")?)?;
+            let cores: Vec<u8> = cp.cores.iter().flat_map(|c| c.to_le_bytes()).collect();
+            let cores = payload.push(&cores)?;
+            let mid: Vec<u8> = cp.mid.iter().flat_map(MidRecord::to_bytes).collect();
+            let mid = payload.push(&mid)?;
+            desc.weight_section = bt;
+            desc.op = LayerOp::Cp {
+                rank,
+                a,
+                cores,
+                mid,
+            };
+        }
+    }
+    desc.bias_section = payload.push(&bias_bytes(l, i)?)?;
+    let rq: Vec<u8> = l.requant.iter().flat_map(|r| r.to_bytes()).collect();
+    desc.requant_section = payload.push(&rq)?;
+    Ok(desc)
+}
+
+/// Lays out the payload, fills in the header and returns the blob bytes.
+pub fn encode_net(m: &QModel) -> Result<Vec<u8>, EncodeError> {
+    if m.layers.len() > MAX_LAYERS {
+        return Err(EncodeError::TooManyLayers(m.layers.len()));
+    }
+    let mut payload = Payload(Vec::new());
+    let dim = |n: usize, what| u16::try_from(n).map_err(|_| EncodeError::TooLarge(what));
+    let (kind, input_stage, output_stage, input_dim, output_dim) = match &m.kind {
+        QKind::Model(kind) => (
+            *kind,
+            payload.push(&stage_bytes(&m.input_stage))?,
+            payload.push(&stage_bytes(&m.output_stage))?,
+            dim(m.input_stage.len(), "input width")?,
+            dim(m.output_stage.len(), "output width")?,
+        ),
+        QKind::Style {
+            base_crc,
+            layer,
+            name,
+        } => {
+            if name.len() > MAX_STYLE_NAME {
+                return Err(EncodeError::TooLarge("style name"));
+            }
+            let first = m.layers.first().ok_or(EncodeError::Length {
+                layer: 0,
+                what: "adapter",
+            })?;
+            let name = payload.push(name.as_bytes())?;
+            (
+                ModelKind::Style {
+                    base_crc: *base_crc,
+                    layer: *layer,
+                    name,
+                },
+                Section::default(),
+                Section::default(),
+                first.desc.in_dim,
+                first.desc.out_dim,
+            )
+        }
+    };
+    let mut layers = heapless::Vec::<LayerDesc, MAX_LAYERS>::new();
+    for (i, l) in m.layers.iter().enumerate() {
+        let desc = layer_sections(&mut payload, l, i)?;
+        layers
+            .push(desc)
+            .map_err(|_| EncodeError::TooManyLayers(m.layers.len()))?;
+    }
+    let header = Header {
+        kind,
+        gating: m.gating,
+        input_dim,
+        output_dim,
+        ram_bytes: u32::try_from(phasegate::ram_bytes(&layers))
+            .map_err(|_| EncodeError::TooLarge("RAM"))?,
+        macs_per_frame: u32::try_from(phasegate::macs(&m.gating, &layers))
+            .map_err(|_| EncodeError::TooLarge("MACs per frame"))?,
+        layers,
+        input_stage,
+        output_stage,
+        payload_len: u32::try_from(payload.0.len())
+            .map_err(|_| EncodeError::TooLarge("payload"))?,
+        payload_crc: crc32(&payload.0),
+    };
+    Ok(frame(&header, &payload.0))
+}

@@ -1,0 +1,364 @@
+//! Styles on the host: the styled networks behind the controller loop
+//! (float reference with adapters, and the fixed-point `StyledRuntime`),
+//! rollouts, style metrics and pictures, and the adapter-learning
+//! demonstration ([`demo`]).
+
+pub mod demo;
+
+use anyhow::{anyhow, Result};
+use exporter::cp::float::{Adapter, FloatNet};
+use phasegate::controller::layout::{INPUTS, JOINTS, OUTPUTS};
+use phasegate::controller::{phase_from_cycles, Command, Locomotion, Network, Pose, Real};
+use phasegate::{Mix, Model, Style, StyledRuntime};
+use std::f64::consts::TAU;
+use std::fmt::Write as _;
+
+/// The float network with adapters (each with its mixing weight), f64.
+pub struct StyledFloat<'a> {
+    /// Base.
+    pub net: &'a FloatNet,
+    /// Adapters and weights.
+    pub adapters: Vec<(&'a Adapter, f64)>,
+}
+
+impl Network<f64> for StyledFloat<'_> {
+    fn predict(
+        &mut self,
+        phase: f64,
+        x: &[f64; INPUTS],
+        y: &mut [f64; OUTPUTS],
+    ) -> phasegate::Result<()> {
+        let out = self.net.forward_trace(x, phase * TAU, &self.adapters).y;
+        for (d, s) in y.iter_mut().zip(out) {
+            *d = s;
+        }
+        Ok(())
+    }
+
+    fn mean_output(&self, y: &mut [f64; OUTPUTS]) -> phasegate::Result<()> {
+        for (d, &s) in y.iter_mut().zip(&self.net.ymean) {
+            *d = s;
+        }
+        Ok(())
+    }
+}
+
+/// The float PFNN (cubic gating) from a weight directory or an `.npz`.
+pub fn load_float(path: &std::path::Path) -> Result<exporter::float_pfnn::FloatPfnn> {
+    exporter::cp::cli::load_dense(path, exporter::float_pfnn::GatingMode::Cubic)
+}
+
+/// Activation width of host styled runtimes.
+pub const WIDTH: usize = 2048;
+/// Adapter scratch of host styled runtimes.
+pub const SCRATCH: usize = 4096;
+/// Styles a host styled runtime holds.
+pub const BANK: usize = 8;
+
+/// The fixed-point styled runtime behind the controller loop (f32 glue, as
+/// on the device).
+pub struct StyledFixed<'a> {
+    /// The runtime.
+    pub rt: Box<StyledRuntime<'a, WIDTH, SCRATCH, BANK>>,
+}
+
+impl<'a> StyledFixed<'a> {
+    /// A base blob and style blobs, all validated and attached.
+    pub fn new(base: &'a [u8], styles: &[&'a [u8]]) -> Result<Self> {
+        let model = Model::from_bytes(base).map_err(|e| anyhow!("base blob: {e}"))?;
+        let mut rt = Box::new(StyledRuntime::new(model).map_err(|e| anyhow!("{e}"))?);
+        for (i, s) in styles.iter().enumerate() {
+            let style = Style::from_bytes(s).map_err(|e| anyhow!("style {i}: {e}"))?;
+            rt.add_style(style).map_err(|e| anyhow!("style {i}: {e}"))?;
+        }
+        Ok(StyledFixed { rt })
+    }
+}
+
+impl Network<f32> for StyledFixed<'_> {
+    fn predict(
+        &mut self,
+        phase: f32,
+        x: &[f32; INPUTS],
+        y: &mut [f32; OUTPUTS],
+    ) -> phasegate::Result<()> {
+        self.rt.run(phase_from_cycles(phase), x, y)
+    }
+
+    fn mean_output(&self, y: &mut [f32; OUTPUTS]) -> phasegate::Result<()> {
+        for (o, (_, offset)) in y.iter_mut().zip(self.rt.model().output_stage()) {
+            *o = offset;
+        }
+        Ok(())
+    }
+}
+
+/// One rollout: poses and what the network saw and said each frame.
+#[derive(Clone, Debug, Default)]
+pub struct Run {
+    /// Poses (widened to f64).
+    pub poses: Vec<Pose<f64>>,
+    /// Network inputs, model units.
+    pub inputs: Vec<Vec<f64>>,
+    /// Network outputs, model units.
+    pub outputs: Vec<Vec<f64>>,
+    /// Phases, radians.
+    pub phases: Vec<f64>,
+}
+
+pub(crate) fn widen<R: Real>(p: &Pose<R>) -> Pose<f64> {
+    let v3 = |v: [R; 3]| v.map(Real::to_f64);
+    Pose {
+        frame: p.frame,
+        root_position: v3(p.root_position),
+        facing: p.facing.map(Real::to_f64),
+        joint_positions: p.joint_positions.map(v3),
+        joint_rotations: p.joint_rotations.map(|q| q.map(Real::to_f64)),
+        contacts: p.contacts.map(Real::to_f64),
+        phase: p.phase.to_f64(),
+        gaits: p.gaits.map(Real::to_f64),
+    }
+}
+
+/// Runs the controller loop over `net` for `commands` (one per frame).
+pub fn rollout<R: Real, N: Network<R>>(net: &mut N, commands: &[Command]) -> Result<Run> {
+    let mut state = Locomotion::<R>::new(net).map_err(|e| anyhow!("{e}"))?;
+    let mut run = Run::default();
+    for c in commands {
+        let pose = state.step(net, c).map_err(|e| anyhow!("{e}"))?;
+        let phase = pose.phase.to_f64() * TAU;
+        run.poses.push(widen(pose));
+        run.inputs
+            .push(state.last_input().iter().map(|v| v.to_f64()).collect());
+        run.outputs
+            .push(state.last_output().iter().map(|v| v.to_f64()).collect());
+        run.phases.push(phase);
+    }
+    Ok(run)
+}
+
+/// Joint positions relative to the root, in the root's frame (x right,
+/// y up, z forward).
+pub fn root_space(p: &Pose<f64>) -> [[f64; 3]; JOINTS] {
+    let [fx, fz] = p.facing;
+    p.joint_positions.map(|j| {
+        let (dx, dz) = (j[0] - p.root_position[0], j[2] - p.root_position[2]);
+        // Right is (fz, -fx) for facing (fx, fz) with y up.
+        [dx * fz - dz * fx, j[1], dx * fx + dz * fz]
+    })
+}
+
+/// Head joint.
+pub const HEAD: usize = 16;
+/// Hand joints (left, right).
+pub const HANDS: [usize; 2] = [20, 27];
+
+/// What a style changes, measured on a rollout (frames from `skip` on).
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct StyleMetrics {
+    /// Mean head height.
+    pub head_height: f64,
+    /// Mean hips height.
+    pub hips_height: f64,
+    /// Standard deviation of the hands' forward (z) position in root space:
+    /// the amplitude of the arm swing.
+    pub hand_swing: f64,
+    /// Distance the root travelled.
+    pub distance: f64,
+}
+
+/// [`StyleMetrics`] of `poses[skip..]`.
+pub fn metrics(poses: &[Pose<f64>], skip: usize) -> StyleMetrics {
+    let ps = &poses[skip.min(poses.len())..];
+    let n = ps.len().max(1) as f64;
+    let mut m = StyleMetrics::default();
+    let mut hz = [Vec::new(), Vec::new()];
+    for p in ps {
+        let r = root_space(p);
+        m.head_height += r[HEAD][1] / n;
+        m.hips_height += r[0][1] / n;
+        for (h, &j) in hz.iter_mut().zip(&HANDS) {
+            h.push(r[j][2]);
+        }
+    }
+    let sd = |v: &[f64]| {
+        let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
+        (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len().max(1) as f64).sqrt()
+    };
+    m.hand_swing = 0.5 * (sd(&hz[0]) + sd(&hz[1]));
+    if let (Some(a), Some(b)) = (ps.first(), ps.last()) {
+        m.distance = ((b.root_position[0] - a.root_position[0]).powi(2)
+            + (b.root_position[2] - a.root_position[2]).powi(2))
+        .sqrt();
+    }
+    m
+}
+
+/// RMS and max distance between the root-space joint positions of two runs.
+pub fn pose_difference(a: &[Pose<f64>], b: &[Pose<f64>]) -> (f64, f64) {
+    let (mut sq, mut max, mut n) = (0.0, 0.0f64, 0usize);
+    for (pa, pb) in a.iter().zip(b) {
+        for (ja, jb) in root_space(pa).iter().zip(root_space(pb).iter()) {
+            let d = ((ja[0] - jb[0]).powi(2) + (ja[1] - jb[1]).powi(2) + (ja[2] - jb[2]).powi(2))
+                .sqrt();
+            sq += d * d;
+            max = max.max(d);
+            n += 1;
+        }
+    }
+    ((sq / n.max(1) as f64).sqrt(), max)
+}
+
+/// Mix label.
+pub fn mix_label(m: Mix, names: &[&str]) -> String {
+    let n = |id: phasegate::StyleId| {
+        names
+            .get(usize::from(id.0))
+            .copied()
+            .unwrap_or("?")
+            .to_string()
+    };
+    match m {
+        Mix::Base => "base".to_string(),
+        Mix::One(s) => n(s),
+        Mix::Blend { from, to, weight } => {
+            format!(
+                "{:.0}% {} + {:.0}% {}",
+                100.0 * (1.0 - weight.to_num::<f64>()),
+                n(from),
+                100.0 * weight.to_num::<f64>(),
+                n(to)
+            )
+        }
+    }
+}
+
+/// Side views (root space, facing right) of several runs at the same
+/// frames, one row per run, as an SVG document.
+pub fn svg_side_views(
+    runs: &[(&str, &[Pose<f64>], &str)],
+    frames: &[usize],
+    title: &str,
+) -> String {
+    let (cell_w, cell_h, label_w) = (150.0, 230.0, 150.0);
+    let w = label_w + cell_w * frames.len() as f64;
+    let h = 40.0 + cell_h * runs.len() as f64;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" font-family="sans-serif">"#
+    );
+    let _ = writeln!(s, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
+    let _ = writeln!(s, r#"<text x="10" y="24" font-size="16">{title}</text>"#);
+    let parents = phasegate::controller::layout::PARENTS;
+    for (row, (name, poses, colour)) in runs.iter().enumerate() {
+        let y0 = 40.0 + cell_h * row as f64;
+        let _ = writeln!(
+            s,
+            r#"<text x="10" y="{}" font-size="13">{name}</text>"#,
+            y0 + cell_h / 2.0
+        );
+        for (col, &f) in frames.iter().enumerate() {
+            let Some(p) = poses.get(f) else { continue };
+            let x0 = label_w + cell_w * col as f64 + cell_w / 2.0;
+            let ground = y0 + cell_h - 20.0;
+            let _ = writeln!(
+                s,
+                r##"<line x1="{}" y1="{ground}" x2="{}" y2="{ground}" stroke="#bbb"/>"##,
+                x0 - cell_w / 2.0 + 5.0,
+                x0 + cell_w / 2.0 - 5.0
+            );
+            if row == 0 {
+                let _ = writeln!(
+                    s,
+                    r#"<text x="{}" y="{}" font-size="11">frame {f}</text>"#,
+                    x0 - 25.0,
+                    y0 + 12.0
+                );
+            }
+            let r = root_space(p);
+            // Side view: forward (z) to the right, up is up; 1 unit = 1.1 px.
+            let px = |j: usize| (x0 + 1.1 * r[j][2], ground - 1.1 * r[j][1]);
+            for (j, &par) in parents.iter().enumerate() {
+                if par < 0 {
+                    continue;
+                }
+                let ((ax, ay), (bx, by)) = (px(j), px(par as usize));
+                let left = (1..=5).contains(&j) || (17..=23).contains(&j);
+                let opacity = if left { 0.45 } else { 1.0 };
+                let _ = writeln!(
+                    s,
+                    r#"<line x1="{ax:.1}" y1="{ay:.1}" x2="{bx:.1}" y2="{by:.1}" stroke="{colour}" stroke-width="3" stroke-opacity="{opacity}" stroke-linecap="round"/>"#
+                );
+            }
+        }
+    }
+    s += "</svg>\n";
+    s
+}
+
+/// The side views of [`svg_side_views`] as a PNG raster (no text: rows in
+/// the order given, columns at `frames`), for viewers without SVG.
+pub fn png_side_views(
+    runs: &[(&str, &[Pose<f64>], &str)],
+    frames: &[usize],
+    path: &std::path::Path,
+) -> Result<()> {
+    let (cell_w, cell_h) = (150usize, 230usize);
+    let (w, h) = (cell_w * frames.len(), cell_h * runs.len());
+    let mut img = vec![255u8; w * h * 3];
+    let hex = |c: &str| -> [u8; 3] {
+        let v = u32::from_str_radix(c.trim_start_matches('#'), 16).unwrap_or(0);
+        [(v >> 16) as u8, (v >> 8) as u8, v as u8]
+    };
+    let mut plot = |x: f64, y: f64, c: [u8; 3], a: f64| {
+        if x < 0.0 || y < 0.0 || x >= w as f64 || y >= h as f64 {
+            return;
+        }
+        let i = (y as usize * w + x as usize) * 3;
+        for k in 0..3 {
+            img[i + k] = (f64::from(img[i + k]) * (1.0 - a) + f64::from(c[k]) * a) as u8;
+        }
+    };
+    let parents = phasegate::controller::layout::PARENTS;
+    for (row, (_, poses, colour)) in runs.iter().enumerate() {
+        let c = hex(colour);
+        for (col, &f) in frames.iter().enumerate() {
+            let Some(p) = poses.get(f) else { continue };
+            let x0 = (cell_w * col + cell_w / 2) as f64;
+            let ground = (cell_h * (row + 1) - 20) as f64;
+            for x in (cell_w * col + 5)..(cell_w * (col + 1) - 5) {
+                plot(x as f64, ground, [190, 190, 190], 1.0);
+            }
+            let r = root_space(p);
+            let px = |j: usize| (x0 + 1.1 * r[j][2], ground - 1.1 * r[j][1]);
+            for (j, &par) in parents.iter().enumerate() {
+                if par < 0 {
+                    continue;
+                }
+                let ((ax, ay), (bx, by)) = (px(j), px(par as usize));
+                let left = (1..=5).contains(&j) || (17..=23).contains(&j);
+                let a = if left { 0.45 } else { 1.0 };
+                let n = ((bx - ax).abs().max((by - ay).abs()) * 2.0).ceil().max(1.0) as usize;
+                for t in 0..=n {
+                    let (x, y) = (
+                        ax + (bx - ax) * t as f64 / n as f64,
+                        ay + (by - ay) * t as f64 / n as f64,
+                    );
+                    for dx in -1..=1 {
+                        for dy in -1..=1 {
+                            plot(x + f64::from(dx), y + f64::from(dy), c, a * 0.6);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let file = std::fs::File::create(path).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w as u32, h as u32);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut writer = enc.write_header().map_err(|e| anyhow!("{e}"))?;
+    writer.write_image_data(&img).map_err(|e| anyhow!("{e}"))?;
+    Ok(())
+}

@@ -1,0 +1,29 @@
+//! PFNN locomotion control: stick in, pose out, every frame.
+//!
+//! [`PfnnController`] runs the public PFNN demo's character loop on flat
+//! ground (trajectory blending toward the command, gait blending, the 342
+//! inputs in root space, inference at the current phase, joint blending,
+//! trajectory and root update, phase update) on the fixed-point
+//! [`Runtime`](crate::Runtime), in `f32` with no heap. Foot IK is not done:
+//! the pose is the network's, which is what the fidelity checks compare.
+//!
+//! The loop itself ([`Locomotion`]) is generic over the scalar ([`Real`]:
+//! `f32` or `f64`) and the network ([`Network`]), so the host's float
+//! reference runs the very same code in `f64` over the float network; the
+//! two differ in arithmetic only. `docs/controller.md` describes the loop,
+//! its departures from the demo and the fidelity measured on the real PFNN.
+
+mod command;
+pub mod geom;
+pub mod layout;
+mod locomotion;
+mod pfnn;
+mod pose;
+mod real;
+pub mod trajectory;
+
+pub use command::{field, Command, Gait, GaitWeights, MAX_SPEED, MIN_FACING};
+pub use locomotion::{rates, Locomotion, Network};
+pub use pfnn::{phase_from_cycles, PfnnController};
+pub use pose::Pose;
+pub use real::Real;

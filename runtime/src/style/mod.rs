@@ -1,0 +1,174 @@
+//! Styles: small blobs of residual adapters that change how a base model
+//! moves without touching it (the few-shot styles paper, eq. 4):
+//!
+//! ```text
+//! h1 = ELU(W1(p) h0 + b1 + W_res(p) h0 + b_res(p))
+//! ```
+//!
+//! A style blob has the model blob's framing (magic, version, both CRCs)
+//! and a header of kind [`ModelKind::Style`]: the payload CRC of the base
+//! blob it was built for, the index of the base layer it sits beside, a
+//! name, and one layer, the adapter, whose op gives its form: `Dense` (full),
+//! `Diagonal`, or `Cp` (`W_res(p) = A diag(d(p)) B^T`, the paper's choice).
+//! The adapter reads the base layer's input in the base's activation formats
+//! and writes, with identity activation, in the base layer's output formats,
+//! so its output adds to the base layer's pre-activation in i16 before the
+//! base layer's own activation.
+//!
+//! [`StyledRuntime`] runs one base model with any number of styles from
+//! separate flash regions: it refuses a style built for another base
+//! ([`Error::StyleMismatch`]) and switches or blends styles between frames.
+
+mod styled;
+
+/// The blend weight of [`Mix::Blend`]: `fixed`'s `U1F15`, `[0, 2)` in steps
+/// of 2^-15 (weights above 1 act as 1).
+pub use fixed::types::U1F15 as BlendWeight;
+pub use styled::{Mix, StyleId, StyledRuntime};
+
+use crate::blob::{Activation, Framed, Gating, LayerDesc, ModelKind, Section, MAX_STYLE_NAME};
+use crate::error::{Error, Result};
+use crate::kernels::layer::Kernel;
+use crate::model::{macs, ram_bytes, validate_gating, validate_sections, validate_values, STAGE};
+
+/// A validated style blob, borrowed (its weights stay where the blob is).
+#[derive(Clone, Copy, Debug)]
+pub struct Style<'a> {
+    kernel: Kernel<'a>,
+    gating: Gating,
+    name: &'a str,
+    base_crc: u32,
+    layer: u8,
+    payload_crc: u32,
+    blob_len: usize,
+}
+
+impl<'a> Style<'a> {
+    /// Validates a style blob completely (framing, CRCs, header, the
+    /// adapter's sections, records and overflow proof); the slice must be
+    /// exactly one blob.
+    pub fn from_bytes(blob: &'a [u8]) -> Result<Self> {
+        Self::load(blob, true)
+    }
+
+    /// Like [`Style::from_bytes`] for a blob at the start of a larger flash
+    /// region: bytes after the blob are ignored.
+    pub fn from_region(region: &'a [u8]) -> Result<Self> {
+        Self::load(region, false)
+    }
+
+    fn load(bytes: &'a [u8], exact: bool) -> Result<Self> {
+        let Framed {
+            header,
+            payload,
+            blob_len,
+        } = Framed::parse(bytes, exact)?;
+        let ModelKind::Style {
+            base_crc,
+            layer,
+            name,
+        } = header.kind
+        else {
+            return Err(Error::NotAStyle);
+        };
+        let gated_experts = validate_gating(&header.gating)?;
+        let [desc]: [LayerDesc; 1] = header
+            .layers
+            .as_slice()
+            .try_into()
+            .map_err(|_| Error::UnsupportedParameter { layer: STAGE })?;
+        if desc.in_dim != header.input_dim || desc.out_dim != header.output_dim {
+            return Err(Error::DimensionMismatch { layer: 0 });
+        }
+        if desc.in_dim == 0 || desc.out_dim == 0 {
+            return Err(Error::UnsupportedParameter { layer: 0 });
+        }
+        let want = if desc.gated { gated_experts } else { 1 };
+        if desc.experts != want {
+            return Err(Error::GatingMismatch { layer: 0 });
+        }
+        if desc.activation != Activation::Identity {
+            return Err(Error::UnsupportedParameter { layer: 0 });
+        }
+        validate_sections(payload, 0, &desc)?;
+        let empty = Section::default();
+        if (header.input_stage, header.output_stage) != (empty, empty) {
+            return Err(Error::UnsupportedParameter { layer: STAGE });
+        }
+        let name = name_str(payload, name)?;
+        if u64::from(header.ram_bytes) != ram_bytes(&header.layers) as u64
+            || u64::from(header.macs_per_frame) != macs(&header.gating, &header.layers)
+        {
+            return Err(Error::HeaderInconsistent);
+        }
+        validate_values(payload, &header.gating, &desc, 0)?;
+        let kernel = Kernel::new(payload, desc, 0).ok_or(Error::SectionOutOfBounds { layer: 0 })?;
+        Ok(Style {
+            kernel,
+            gating: header.gating,
+            name,
+            base_crc,
+            layer,
+            payload_crc: header.payload_crc,
+            blob_len,
+        })
+    }
+
+    /// The style's name.
+    pub fn name(&self) -> &'a str {
+        self.name
+    }
+
+    /// Payload CRC-32 of the base blob this style was built for.
+    pub fn base_crc(&self) -> u32 {
+        self.base_crc
+    }
+
+    /// Payload CRC-32 of this style blob.
+    pub fn payload_crc(&self) -> u32 {
+        self.payload_crc
+    }
+
+    /// Index of the base layer the adapter sits beside.
+    pub fn layer(&self) -> u8 {
+        self.layer
+    }
+
+    /// The adapter.
+    pub fn kernel(&self) -> &Kernel<'a> {
+        &self.kernel
+    }
+
+    /// Gating the style was built with (the base model's).
+    pub fn gating(&self) -> Gating {
+        self.gating
+    }
+
+    /// Bytes of the whole blob.
+    pub fn blob_len(&self) -> usize {
+        self.blob_len
+    }
+
+    /// Scratch elements the styled runtime needs for this style (two
+    /// adapter outputs, for blending, plus a CP adapter's middle vector).
+    pub fn scratch_elements(&self) -> usize {
+        2 * usize::from(self.kernel.desc().out_dim) + self.kernel.scratch_elements()
+    }
+
+    /// Multiply-accumulates the adapter adds to a frame.
+    pub fn macs_per_frame(&self) -> u64 {
+        macs(&self.gating, core::slice::from_ref(self.kernel.desc()))
+    }
+}
+
+fn name_str(payload: &[u8], s: Section) -> Result<&str> {
+    let bad = Error::UnsupportedParameter { layer: STAGE };
+    let end = s.end().ok_or(Error::SectionOutOfBounds { layer: STAGE })?;
+    let bytes = payload
+        .get(s.offset as usize..end as usize)
+        .ok_or(Error::SectionOutOfBounds { layer: STAGE })?;
+    if bytes.len() > MAX_STYLE_NAME {
+        return Err(bad);
+    }
+    core::str::from_utf8(bytes).map_err(|_| bad)
+}
