@@ -15,3 +15,4 @@ pub mod npz;
 pub mod pfnn_dir;
 pub mod quantise;
 pub mod style;
+pub mod cli_args;

@@ -1,7 +1,7 @@
 //! `exporter`: trained weights in, checksummed fixed-point blob out.
 
 use anyhow::{bail, Context, Result};
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use phasegate::blob::WeightFormat;
 use std::io::IsTerminal;
@@ -24,25 +24,7 @@ struct Cli {
     command: Command,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
-enum Gating {
-    /// Nearest lower of the tables (the demo's default mode).
-    Constant,
-    /// Linear blend of 10 tables (every 5th of 50).
-    Linear,
-    /// Exact Catmull-Rom spline of the 4 recovered control points.
-    Cubic,
-}
-
-impl From<Gating> for GatingMode {
-    fn from(g: Gating) -> Self {
-        match g {
-            Gating::Constant => GatingMode::Constant,
-            Gating::Linear => GatingMode::Linear,
-            Gating::Cubic => GatingMode::Cubic,
-        }
-    }
-}
+use exporter::cli_args::GatingArg as Gating;
 
 #[derive(clap::Args)]
 struct QuantArgs {

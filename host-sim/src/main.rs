@@ -2,7 +2,7 @@
 //! demos and golden vectors.
 
 use anyhow::{anyhow, bail, Result};
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::{Parser, Subcommand};
 use exporter::float_pfnn::{FloatPfnn, GatingMode};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -20,25 +20,7 @@ struct Cli {
     command: Command,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
-enum Gating {
-    /// Nearest lower table (the demo's default).
-    Constant,
-    /// Linear blend of 10 tables.
-    Linear,
-    /// Exact Catmull-Rom spline of the recovered control points.
-    Cubic,
-}
-
-impl From<Gating> for GatingMode {
-    fn from(g: Gating) -> Self {
-        match g {
-            Gating::Constant => GatingMode::Constant,
-            Gating::Linear => GatingMode::Linear,
-            Gating::Cubic => GatingMode::Cubic,
-        }
-    }
-}
+use exporter::cli_args::GatingArg as Gating;
 
 #[derive(Subcommand)]
 enum Command {

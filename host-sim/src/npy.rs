@@ -46,38 +46,31 @@ fn read_any<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
     Ok((shape, data))
 }
 
-/// Reads an `(N, cols)` float32 matrix.
-pub fn read_matrix_f32(path: &Path, cols: usize) -> Result<Matrix<f32>> {
-    let (shape, data) = read_any::<f32>(path)?;
+/// Reads a 2-D matrix of `T`; with `cols`, its width must be that.
+fn read_matrix<T: npyz::Deserialize>(path: &Path, cols: Option<usize>, dtype: &str) -> Result<Matrix<T>> {
+    let (shape, data) = read_any::<T>(path)?;
     match shape[..] {
-        [r, c] if c as usize == cols => Ok(Matrix {
-            rows: r as usize,
-            cols,
-            data,
-        }),
-        _ => bail!(
-            "{}: shape {:?}, expected (N, {cols}) float32",
-            path.display(),
-            shape
-        ),
+        [r, c] if cols.is_none_or(|want| want as u64 == c) => Ok(Matrix { rows: r as usize, cols: c as usize, data }),
+        _ => {
+            let width = cols.map_or("M".to_string(), |c| c.to_string());
+            bail!("{}: shape {:?}, expected (N, {width}) {dtype}", path.display(), shape)
+        }
     }
 }
 
-/// Reads an `(N, cols)` int16 matrix.
+/// Reads an `(N, cols)` float32 matrix.
+pub fn read_matrix_f32(path: &Path, cols: usize) -> Result<Matrix<f32>> {
+    read_matrix(path, Some(cols), "float32")
+}
+
+/// Reads an `(N, M)` float32 matrix of any width.
+pub fn read_matrix_f32_any(path: &Path) -> Result<Matrix<f32>> {
+    read_matrix(path, None, "float32")
+}
+
+/// Reads an `(N, M)` int16 matrix.
 pub fn read_matrix_i16(path: &Path) -> Result<Matrix<i16>> {
-    let (shape, data) = read_any::<i16>(path)?;
-    match shape[..] {
-        [r, c] => Ok(Matrix {
-            rows: r as usize,
-            cols: c as usize,
-            data,
-        }),
-        _ => bail!(
-            "{}: shape {:?}, expected (N, M) int16",
-            path.display(),
-            shape
-        ),
-    }
+    read_matrix(path, None, "int16")
 }
 
 /// Reads an `(N,)` float32 vector.
@@ -85,28 +78,7 @@ pub fn read_vector_f32(path: &Path) -> Result<Vec<f32>> {
     let (shape, data) = read_any::<f32>(path)?;
     match shape[..] {
         [_] => Ok(data),
-        _ => bail!(
-            "{}: shape {:?}, expected (N,) float32",
-            path.display(),
-            shape
-        ),
-    }
-}
-
-/// Reads an `(N, M)` float32 matrix of any width.
-pub fn read_matrix_f32_any(path: &Path) -> Result<Matrix<f32>> {
-    let (shape, data) = read_any::<f32>(path)?;
-    match shape[..] {
-        [r, c] => Ok(Matrix {
-            rows: r as usize,
-            cols: c as usize,
-            data,
-        }),
-        _ => bail!(
-            "{}: shape {:?}, expected (N, M) float32",
-            path.display(),
-            shape
-        ),
+        _ => bail!("{}: shape {:?}, expected (N,) float32", path.display(), shape),
     }
 }
 
