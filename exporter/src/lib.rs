@@ -5,6 +5,7 @@
 pub mod atomic;
 pub mod blob_writer;
 pub mod calibrate;
+pub mod cli_args;
 pub mod control_points;
 pub mod cp;
 pub mod error;
@@ -15,4 +16,3 @@ pub mod npz;
 pub mod pfnn_dir;
 pub mod quantise;
 pub mod style;
-pub mod cli_args;

@@ -142,7 +142,6 @@ fn float_pfnn_from_arrays(
     path: &Path,
     mode: GatingMode,
 ) -> Result<FloatPfnn> {
-    let arrays = arrays;
     let v = |n: &str| -> Result<Array1<f64>> {
         vector(take(arrays, n, path)?, n).with_context(|| path.display().to_string())
     };

@@ -396,7 +396,10 @@ pub(crate) mod fixtures {
             Some(dir)
         } else {
             // Straight to stderr: the harness would swallow println! of a passing test.
-            let _ = std::io::Write::write_all(&mut std::io::stderr(), b"skipped: ../shared/pfnn not found\n");
+            let _ = std::io::Write::write_all(
+                &mut std::io::stderr(),
+                b"skipped: ../shared/pfnn not found\n",
+            );
             None
         }
     }

@@ -224,7 +224,11 @@ pub fn quantise_pfnn(net: &FloatPfnn, opts: &QuantOptions) -> Result<Quantised, 
         let is_last = li == last;
         let row_max = &ranges.rows[li];
         // Hidden rows stop at Q15: ELU needs -1.0 to be representable.
-        let finest = if is_last { f64::INFINITY } else { f64::from(1u32 << 15) };
+        let finest = if is_last {
+            f64::INFINITY
+        } else {
+            f64::from(1u32 << 15)
+        };
         let caps: Vec<f64> = row_max
             .iter()
             .map(|&m| (ACT_MAX / (opts.headroom * m.max(1e-6))).min(finest))

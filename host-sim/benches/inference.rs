@@ -25,11 +25,16 @@ fn bench_blob(c: &mut Criterion, name: &str, blob: &[u8], net: &FloatPfnn) {
         b.iter(|| {
             i = (i + 1) % x.rows;
             rt.quantise_input(x.row(i), &mut q).expect("input");
-            let out = rt.run_quantised(Phase::from_radians(p[i]).expect("phase"), &q).expect("run");
+            let out = rt
+                .run_quantised(Phase::from_radians(p[i]).expect("phase"), &q)
+                .expect("run");
             black_box(out[0])
         })
     });
-    let rows: Vec<Vec<f64>> = x.iter_rows().map(|r| r.iter().map(|&v| f64::from(v)).collect()).collect();
+    let rows: Vec<Vec<f64>> = x
+        .iter_rows()
+        .map(|r| r.iter().map(|&v| f64::from(v)).collect())
+        .collect();
     group.bench_function("f64 float reference frame", |b| {
         let mut i = 0;
         b.iter(|| {
@@ -45,12 +50,21 @@ fn inference(c: &mut Criterion) {
     bench_blob(c, "default-int8", host_sim::default_model::BLOB, &net);
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/pfnn/network");
     let Ok(tables) = exporter::pfnn_dir::load_pfnn_dir(&dir) else {
-        eprintln!("real PFNN not found at {}: benchmarking the default model only", dir.display());
+        eprintln!(
+            "real PFNN not found at {}: benchmarking the default model only",
+            dir.display()
+        );
         return;
     };
     let (net, residual) = FloatPfnn::from_tables(&tables, GatingMode::Cubic);
-    for (name, weights) in [("pfnn-int8", WeightFormat::I8), ("pfnn-int16", WeightFormat::I16)] {
-        let opts = QuantOptions { weights, ..QuantOptions::default() };
+    for (name, weights) in [
+        ("pfnn-int8", WeightFormat::I8),
+        ("pfnn-int16", WeightFormat::I16),
+    ] {
+        let opts = QuantOptions {
+            weights,
+            ..QuantOptions::default()
+        };
         let (blob, _) = exporter::export::export_pfnn(&net, residual, &opts).expect("export");
         bench_blob(c, name, &blob, &net);
     }

@@ -107,6 +107,16 @@ enum Command {
         #[arg(long)]
         overwrite: bool,
     },
+    /// Drive a controller with a command script and record the rollout (.npz).
+    Rollout(host_sim::rollout::RolloutArgs),
+    /// Per-frame and summary errors between two rollouts of the same script.
+    RolloutCompare(host_sim::rollout::RolloutCompareArgs),
+    /// Draw skeleton snapshots of one or two rollouts (PNG).
+    Render(host_sim::render::RenderArgs),
+    /// Plot the errors between two rollouts against frame number (PNG).
+    PlotErrors(host_sim::render::PlotErrorsArgs),
+    /// Controller fidelity on a real PFNN: int16/int8 blobs and f32 vs f64, every built-in script.
+    Fidelity(host_sim::rollout::fidelity::FidelityArgs),
     /// Check (default) or rewrite the golden vectors of the default model.
     Golden {
         /// The golden directory.
@@ -225,8 +235,18 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Target { model, frames, inputs, phases } => {
-            host_sim::target::run_target(&host_sim::target::TargetArgs { model, frames, inputs, phases })?;
+        Command::Target {
+            model,
+            frames,
+            inputs,
+            phases,
+        } => {
+            host_sim::target::run_target(&host_sim::target::TargetArgs {
+                model,
+                frames,
+                inputs,
+                phases,
+            })?;
             Ok(())
         }
         Command::FirmwareSnapshots { overwrite } => {
@@ -236,6 +256,11 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
+        Command::Rollout(args) => host_sim::rollout::rollout_cmd(&args),
+        Command::RolloutCompare(args) => host_sim::rollout::rollout_compare_cmd(&args),
+        Command::Render(args) => host_sim::render::render_cmd(&args),
+        Command::PlotErrors(args) => host_sim::render::plot_errors_cmd(&args),
+        Command::Fidelity(args) => host_sim::rollout::fidelity::fidelity_cmd(&args),
         Command::Golden { dir, write } => {
             if write {
                 golden::write(&dir)?;

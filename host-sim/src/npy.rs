@@ -47,13 +47,25 @@ fn read_any<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
 }
 
 /// Reads a 2-D matrix of `T`; with `cols`, its width must be that.
-fn read_matrix<T: npyz::Deserialize>(path: &Path, cols: Option<usize>, dtype: &str) -> Result<Matrix<T>> {
+fn read_matrix<T: npyz::Deserialize>(
+    path: &Path,
+    cols: Option<usize>,
+    dtype: &str,
+) -> Result<Matrix<T>> {
     let (shape, data) = read_any::<T>(path)?;
     match shape[..] {
-        [r, c] if cols.is_none_or(|want| want as u64 == c) => Ok(Matrix { rows: r as usize, cols: c as usize, data }),
+        [r, c] if cols.is_none_or(|want| want as u64 == c) => Ok(Matrix {
+            rows: r as usize,
+            cols: c as usize,
+            data,
+        }),
         _ => {
             let width = cols.map_or("M".to_string(), |c| c.to_string());
-            bail!("{}: shape {:?}, expected (N, {width}) {dtype}", path.display(), shape)
+            bail!(
+                "{}: shape {:?}, expected (N, {width}) {dtype}",
+                path.display(),
+                shape
+            )
         }
     }
 }
@@ -78,7 +90,11 @@ pub fn read_vector_f32(path: &Path) -> Result<Vec<f32>> {
     let (shape, data) = read_any::<f32>(path)?;
     match shape[..] {
         [_] => Ok(data),
-        _ => bail!("{}: shape {:?}, expected (N,) float32", path.display(), shape),
+        _ => bail!(
+            "{}: shape {:?}, expected (N,) float32",
+            path.display(),
+            shape
+        ),
     }
 }
 

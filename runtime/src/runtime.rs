@@ -59,7 +59,12 @@ impl<'a, const W: usize> Runtime<'a, W> {
     /// network, writes de-quantised outputs (model units) to `output`.
     pub fn run(&mut self, phase: Phase, input: &[f32], output: &mut [f32]) -> Result<()> {
         check_len(self.model.output_dim(), output.len())?;
-        let Runtime { model, a, b, clipped } = self;
+        let Runtime {
+            model,
+            a,
+            b,
+            clipped,
+        } = self;
         *clipped = quantise_into(model, input, a)?;
         let q = forward(model, a, b, phase)?;
         for ((o, &v), (scale, offset)) in output.iter_mut().zip(q).zip(model.output_stage()) {

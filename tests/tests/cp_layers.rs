@@ -334,3 +334,42 @@ fn cp_als_recovers_a_tensor_of_known_rank() {
         res.iterations
     );
 }
+
+/// The wire bytes of the new header variants (postcard: varint variant
+/// index, then the fields), as docs/cp-and-styles.md lists them.
+#[test]
+fn new_header_variants_have_the_documented_bytes() {
+    use phasegate::blob::{LayerOp, ModelKind, Section};
+    let enc = |v: &dyn erased::Enc| v.bytes();
+    mod erased {
+        pub trait Enc {
+            fn bytes(&self) -> Vec<u8>;
+        }
+        impl<T: serde::Serialize> Enc for T {
+            fn bytes(&self) -> Vec<u8> {
+                postcard::to_allocvec(self).unwrap()
+            }
+        }
+    }
+    let s = |offset, len| Section { offset, len };
+    assert_eq!(enc(&LayerOp::Dense), [0x00]);
+    assert_eq!(
+        enc(&LayerOp::Cp {
+            rank: 300,
+            a: s(16, 8),
+            cores: s(24, 2400),
+            mid: s(2424, 2400),
+        }),
+        [0x01, 0xac, 0x02, 0x10, 0x08, 0x18, 0xe0, 0x12, 0xf8, 0x12, 0xe0, 0x12]
+    );
+    assert_eq!(enc(&LayerOp::Diagonal), [0x02]);
+    assert_eq!(enc(&ModelKind::Pfnn), [0x00]);
+    assert_eq!(
+        enc(&ModelKind::Style {
+            base_crc: 0x1234_5678,
+            layer: 1,
+            name: s(0, 6),
+        }),
+        [0x02, 0xf8, 0xac, 0xd1, 0x91, 0x01, 0x01, 0x00, 0x06]
+    );
+}

@@ -66,7 +66,11 @@ fn clipped_inputs_are_counted() {
     let phase = phasegate::Phase::from_bits(0);
     let mut y = vec![0.0f32; 311];
     rt.run(phase, x.row(0), &mut y).unwrap();
-    assert_eq!(rt.clipped_inputs(), 0, "golden inputs lie inside the declared range");
+    assert_eq!(
+        rt.clipped_inputs(),
+        0,
+        "golden inputs lie inside the declared range"
+    );
     let mut far = x.row(0).to_vec();
     far[3] = 1e9;
     far[7] = -1e9;

@@ -28,25 +28,52 @@ fn tiny_hidden_rows_stay_in_q15() {
         l1[(i, 0)] = 5.0;
     }
     let l2 = Array2::from_shape_fn((2, 4), |_| rnd());
-    let experts = |w: &Array2<f64>, b: &Array1<f64>| ExpertLayer { w: vec![w.clone(); 4], b: vec![b.clone(); 4] };
+    let experts = |w: &Array2<f64>, b: &Array1<f64>| ExpertLayer {
+        w: vec![w.clone(); 4],
+        b: vec![b.clone(); 4],
+    };
     let net = FloatPfnn {
         mode: GatingMode::Cubic,
         xmean: Array1::zeros(4),
         xstd: Array1::ones(4),
         ymean: Array1::zeros(2),
         ystd: Array1::ones(2),
-        layers: [experts(&l0, &b0), experts(&l1, &Array1::zeros(4)), experts(&l2, &Array1::zeros(2))],
+        layers: [
+            experts(&l0, &b0),
+            experts(&l1, &Array1::zeros(4)),
+            experts(&l2, &Array1::zeros(2)),
+        ],
     };
     for weights in [WeightFormat::I16, WeightFormat::I8] {
-        let (blob, _) = export_pfnn(&net, None, &QuantOptions { weights, ..QuantOptions::default() }).unwrap();
+        let (blob, _) = export_pfnn(
+            &net,
+            None,
+            &QuantOptions {
+                weights,
+                ..QuantOptions::default()
+            },
+        )
+        .unwrap();
         let model = Model::from_bytes(&blob).unwrap();
-        assert!(model.layer(0).unwrap().requant.chunks(8).all(|r| r[6] <= 15), "{weights:?}: a hidden row finer than Q15");
+        assert!(
+            model
+                .layer(0)
+                .unwrap()
+                .requant
+                .chunks(8)
+                .all(|r| r[6] <= 15),
+            "{weights:?}: a hidden row finer than Q15"
+        );
         let mut rt: Runtime<'_, 8> = Runtime::new(model).unwrap();
         let x = [0.3f32, -0.2, 0.1, 0.5];
         let mut y = [0.0f32; 2];
         rt.run(Phase::from_bits(0), &x, &mut y).unwrap();
         let want = net.forward(&x.map(f64::from), 0.0);
-        let tol = if weights == WeightFormat::I16 { 2e-4 } else { 2e-2 };
+        let tol = if weights == WeightFormat::I16 {
+            2e-4
+        } else {
+            2e-2
+        };
         for (a, b) in y.iter().zip(&want) {
             assert!((f64::from(*a) - b).abs() < tol, "{weights:?}: {a} vs {b}");
         }

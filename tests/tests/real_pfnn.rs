@@ -20,7 +20,10 @@ fn pfnn_dir() -> Option<PathBuf> {
     if dir.join("Xmean.bin").is_file() {
         Some(dir)
     } else {
-        skip(&format!("real PFNN weights not found at {} (set PHASEGATE_PFNN_DIR)", dir.display()));
+        skip(&format!(
+            "real PFNN weights not found at {} (set PHASEGATE_PFNN_DIR)",
+            dir.display()
+        ));
         None
     }
 }

@@ -69,6 +69,9 @@ pub struct CpArgs {
     /// model's outputs on inputs drawn from its normalisation statistics.
     #[arg(long, default_value_t = 0)]
     pub distill: usize,
+    /// Samples drawn for distillation.
+    #[arg(long, default_value_t = 4096)]
+    pub distill_samples: usize,
     /// Most CP-ALS sweeps per decomposition.
     #[arg(long, default_value_t = 200)]
     pub als_iters: usize,
@@ -243,6 +246,7 @@ pub fn cp(args: &CpArgs) -> Result<()> {
             &net,
             &DistillOptions {
                 steps: args.distill,
+                samples: args.distill_samples.max(1),
                 ..DistillOptions::default()
             },
         );

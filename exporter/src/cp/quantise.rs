@@ -461,7 +461,13 @@ fn quantise_cp(
     let mid_power: Option<Vec<f64>> = spec
         .mid_power
         .map(|p| p.iter().zip(&zs).map(|(m, z)| m * z * z).collect());
-    let a = quantise_rows(out, rank, q, |i, r| l.a[(i, r)] / zs[r], mid_power.as_deref());
+    let a = quantise_rows(
+        out,
+        rank,
+        q,
+        |i, r| l.a[(i, r)] / zs[r],
+        mid_power.as_deref(),
+    );
     let mut bias = vec![0i64; experts * out];
     for k in 0..experts {
         for i in 0..out {

@@ -252,7 +252,12 @@ fn dataset(net: &FloatNet, runs: &[Run], target: Target, styled: bool) -> Datase
         let outs = runs.iter().flat_map(|r| r.outputs.clone());
         raw.iter()
             .zip(outs)
-            .map(|(x, y)| (target.apply_input(x, &ymean, false), target.apply(&y, &ymean)))
+            .map(|(x, y)| {
+                (
+                    target.apply_input(x, &ymean, false),
+                    target.apply(&y, &ymean),
+                )
+            })
             .unzip()
     };
     let (x, g) = inputs_and_gates(net, &xs, &ps);
@@ -327,6 +332,8 @@ pub struct DemoReport {
     pub base: StyleMetrics,
     /// Base float metrics.
     pub base_float: StyleMetrics,
+    /// Base fixed vs base float rollout: RMS and max joint distance.
+    pub base_fixed_vs_float_pose: (f64, f64),
     /// Per style.
     pub styles: Vec<StyleResult>,
     /// 50/50 blend of the two styles (fixed point).
@@ -340,8 +347,13 @@ pub struct DemoReport {
 fn residual(target: Target, run: &Run, net: &FloatNet) -> f64 {
     let ymean = net.ymean.to_vec();
     let coords: Vec<usize> = match target {
-        Target::Crouch => (0..JOINTS).flat_map(|j| [POS + 3 * j + 1, VEL + 3 * j + 1]).collect(),
-        Target::Swing => ARM_JOINTS.iter().flat_map(|&j| [POS + 3 * j + 2, VEL + 3 * j + 2]).collect(),
+        Target::Crouch => (0..JOINTS)
+            .flat_map(|j| [POS + 3 * j + 1, VEL + 3 * j + 1])
+            .collect(),
+        Target::Swing => ARM_JOINTS
+            .iter()
+            .flat_map(|&j| [POS + 3 * j + 2, VEL + 3 * j + 2])
+            .collect(),
     };
     let (mut res, mut change) = (0.0, 0.0);
     for ((x, &p), y) in run.inputs.iter().zip(&run.phases).zip(&run.outputs) {
@@ -528,6 +540,7 @@ pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
         base_blob_bytes: base_blob.len(),
         base: metrics(&base_fixed.poses, skip),
         base_float: metrics(&base_float.poses, skip),
+        base_fixed_vs_float_pose: pose_difference(&base_fixed.poses, &base_float.poses),
         styles: results,
         blend: metrics(&blend.poses, skip),
         switched: metrics(&switched.poses, skip),
@@ -587,6 +600,10 @@ impl DemoReport {
                 100.0 * r.blob.range_used
             );
         }
+        s += &format!(
+            "base alone, fixed vs float rollout joints: rms {:.2} max {:.2}\n",
+            self.base_fixed_vs_float_pose.0, self.base_fixed_vs_float_pose.1
+        );
         s += &format!(
             "largest per-frame phase step: switched run {:.4} rad, base run {:.4} rad\n",
             self.phase_step_max.0, self.phase_step_max.1

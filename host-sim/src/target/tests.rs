@@ -23,7 +23,9 @@ fn qemu_or_skip(test: &str) -> bool {
     if qemu_available() {
         true
     } else {
-        eprintln_direct!("SKIPPED {test}: qemu-system-arm not found (apt-get install qemu-system-arm)");
+        eprintln_direct!(
+            "SKIPPED {test}: qemu-system-arm not found (apt-get install qemu-system-arm)"
+        );
         false
     }
 }
