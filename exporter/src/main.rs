@@ -72,6 +72,16 @@ enum Command {
         #[command(flatten)]
         quant: QuantArgs,
     },
+    /// Decompose a dense model's layers by CP-ALS and write a CP blob.
+    Cp(exporter::cp::cli::CpArgs),
+    /// Write a blob from trained CP factors (.npz or .safetensors).
+    CpImport(exporter::cp::cli::CpImportArgs),
+    /// Size and error of post-hoc CP per rank, every layer decomposed.
+    CpReport(exporter::cp::cli::CpReportArgs),
+    /// Build a style blob (residual adapter) for a base blob.
+    Style(exporter::style::cli::StyleArgs),
+    /// Print a style blob's header; exits non-zero if the blob is invalid.
+    StyleInspect(exporter::style::cli::StyleInspectArgs),
     /// Print a blob's header; exits non-zero if the blob is invalid.
     Inspect {
         /// The blob.
@@ -225,6 +235,11 @@ fn run(cli: Cli) -> Result<()> {
             let net = exporter::npz::float_pfnn_from_npz(&weights, quant.gating.into())?;
             export(&net, None, &quant)
         }
+        Command::Cp(a) => exporter::cp::cli::cp(&a),
+        Command::CpImport(a) => exporter::cp::cli::cp_import(&a),
+        Command::CpReport(a) => exporter::cp::cli::cp_report(&a),
+        Command::Style(a) => exporter::style::cli::style(&a),
+        Command::StyleInspect(a) => exporter::style::cli::style_inspect(&a),
         Command::Inspect { blob } => inspect(&blob),
     }
 }

@@ -117,6 +117,8 @@ enum Command {
     PlotErrors(host_sim::render::PlotErrorsArgs),
     /// Controller fidelity on a real PFNN: int16/int8 blobs and f32 vs f64, every built-in script.
     Fidelity(host_sim::rollout::fidelity::FidelityArgs),
+    /// Learn two CP style adapters from the base model's own rollouts, export and roll them out.
+    StyleDemo(host_sim::style::demo::StyleDemoArgs),
     /// Check (default) or rewrite the golden vectors of the default model.
     Golden {
         /// The golden directory.
@@ -261,6 +263,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Render(args) => host_sim::render::render_cmd(&args),
         Command::PlotErrors(args) => host_sim::render::plot_errors_cmd(&args),
         Command::Fidelity(args) => host_sim::rollout::fidelity::fidelity_cmd(&args),
+        Command::StyleDemo(args) => host_sim::style::demo::style_demo_cmd(&args),
         Command::Golden { dir, write } => {
             if write {
                 golden::write(&dir)?;
