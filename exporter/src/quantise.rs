@@ -572,28 +572,13 @@ fn quantise_layer(
     ))
 }
 
-/// `m * 2^-post == m_real` with `m` in `[2^30, 2^31)`, post in `[0, 62]`.
+/// The requantisation record for multiplier `m_real` after a pre-shift of `pre`.
 fn multiplier(m_real: f64, pre: u8) -> Option<Requant> {
-    if !(m_real.is_finite() && m_real > 0.0) {
-        return None;
-    }
-    let mut post = (30.0 - m_real.log2()).floor() as i32 + 1;
-    let mut m = (m_real * f64::from(post).exp2()).round();
-    if m >= 2147483648.0 {
-        post -= 1;
-        m = (m_real * f64::from(post).exp2()).round();
-    }
-    if post > 62 {
-        m = (m_real * 62f64.exp2()).round();
-        post = 62;
-    }
-    if !(0..=62).contains(&post) || m >= 2147483648.0 {
-        return None;
-    }
+    let (m, post) = crate::cp::quantise::fixed_multiplier(m_real)?;
     Some(Requant {
-        multiplier: m as i32,
+        multiplier: m,
         pre_shift: pre,
-        post_shift: post as u8,
+        post_shift: post,
         frac: 0,
     })
 }
