@@ -278,11 +278,7 @@ pub fn quantise_pfnn(net: &FloatPfnn, opts: &QuantOptions) -> Result<Quantised, 
         });
         layers.push(bl);
         if is_last {
-            output_stage = targets
-                .iter()
-                .zip(net.ystd.iter().zip(&net.ymean))
-                .map(|(&t, (&sd, &m))| ((sd / t) as f32, m as f32))
-                .collect();
+            output_stage = output_stage_records(&targets, &net.ystd, &net.ymean);
         }
         in_scales = targets;
     }
@@ -298,6 +294,20 @@ pub fn quantise_pfnn(net: &FloatPfnn, opts: &QuantOptions) -> Result<Quantised, 
         ranges,
         input_frac,
     })
+}
+
+/// The output stage: `(scale, offset)` per output, turning the last layer's
+/// integers at scale `targets` into model units.
+pub(crate) fn output_stage_records(
+    targets: &[f64],
+    ystd: &ndarray::Array1<f64>,
+    ymean: &ndarray::Array1<f64>,
+) -> Vec<(f32, f32)> {
+    targets
+        .iter()
+        .zip(ystd.iter().zip(ymean))
+        .map(|(&t, (&sd, &m))| ((sd / t) as f32, m as f32))
+        .collect()
 }
 
 /// Scales of the input columns of `consumer`, at most `caps[j]` each.

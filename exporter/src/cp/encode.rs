@@ -1,8 +1,7 @@
-//! Lays out blobs whose layers may be dense, CP or diagonal, and style
-//! blobs. Dense-only models keep going through [`crate::blob_writer`]
-//! (whose output the golden vectors pin); this writer adds the sections of
-//! the newer layer ops and the style header. Both share the framing
-//! ([`crate::blob_writer::frame`]).
+//! Lays out every blob: models whose layers may be dense, CP or diagonal,
+//! and style blobs. [`crate::blob_writer::encode`] (dense models, whose
+//! bytes the golden vectors pin) goes through [`encode_net`]; the framing
+//! is [`crate::blob_writer::frame`].
 
 use phasegate::blob::{
     crc32, AccWidth, Gating, Header, LayerDesc, LayerOp, ModelKind, Requant, Section, WeightFormat,
@@ -100,9 +99,8 @@ fn weight_bytes(
     let mut out = Vec::with_capacity(n * format.bytes());
     for &v in w {
         match format {
-            WeightFormat::I8 if v.abs() <= 127 => out.push(v as i8 as u8),
-            WeightFormat::I16 if v.abs() <= 32767 => out.extend((v as i16).to_le_bytes()),
-            _ => return Err(bad()),
+            WeightFormat::I8 => out.push(i8::try_from(v).map_err(|_| bad())? as u8),
+            WeightFormat::I16 => out.extend(i16::try_from(v).map_err(|_| bad())?.to_le_bytes()),
         }
     }
     Ok(out)

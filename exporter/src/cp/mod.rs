@@ -26,7 +26,7 @@ use crate::cp::encode::{encode_net, QKind, QModel};
 use crate::cp::float::{Adapter, FloatNet};
 use crate::cp::quantise::{quantise_layer, LayerSpec, QuantLayerReport};
 use crate::export::ExportError;
-use crate::quantise::{gating_for, QuantError, QuantOptions};
+use crate::quantise::{gating_for, output_stage_records, QuantError, QuantOptions};
 
 /// Largest |value| per row of every layer's pre-activation and per
 /// component of every CP layer's middle vector, over calibration samples.
@@ -181,11 +181,7 @@ pub fn quantise_net(net: &FloatNet, opts: &QuantOptions) -> Result<QuantisedNet,
         layers.push(ql);
         reports.push(rep);
         if is_last {
-            output_stage = targets
-                .iter()
-                .zip(net.ystd.iter().zip(&net.ymean))
-                .map(|(&t, (&sd, &m))| ((sd / t) as f32, m as f32))
-                .collect();
+            output_stage = output_stage_records(&targets, &net.ystd, &net.ymean);
         }
         in_scales = targets;
     }

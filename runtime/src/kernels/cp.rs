@@ -17,10 +17,9 @@ use crate::blob::records::bias_at;
 use crate::blob::REQUANT_RECORD_LEN;
 use crate::blob::{AccWidth, Activation, Gating, LayerDesc, Requant, WeightFormat};
 use crate::error::{Error, Result};
-use crate::fixed::elu::elu_q;
 use crate::fixed::gate::{Gate, ONE};
 use crate::fixed::{round_shift, sat_i16, sat_i32};
-use crate::kernels::dense::requantise;
+use crate::kernels::dense::finish_row;
 
 /// Bytes of one middle record.
 pub const MID_RECORD_LEN: usize = 8;
@@ -277,17 +276,7 @@ impl<'a> CpLayer<'a> {
                 let b = bias_at(self.bias, width, usize::from(e) * out + i).unwrap_or(0);
                 total = total.saturating_add(b.saturating_mul(i64::from(g)));
             }
-            let r = Requant::from_bytes(rec).unwrap_or(Requant {
-                multiplier: 0,
-                pre_shift: 0,
-                post_shift: 0,
-                frac: 0,
-            });
-            let q = requantise(total, &r);
-            *yi = match self.desc.activation {
-                Activation::Identity => q,
-                Activation::Elu => elu_q(q, r.frac),
-            };
+            *yi = finish_row(total, rec, self.desc.activation);
         }
         Ok(())
     }
@@ -383,6 +372,7 @@ impl<'a> CpLayer<'a> {
 mod tests {
     use super::*;
     use crate::blob::{LayerOp, Section};
+    use crate::fixed::elu::elu_q;
     use crate::fixed::phase::Phase;
     use proptest::prelude::*;
 

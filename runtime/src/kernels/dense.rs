@@ -129,6 +129,29 @@ pub fn requantise(total: i64, r: &Requant) -> i16 {
     sat_i16(round_shift(t * i64::from(r.multiplier), r.post_shift))
 }
 
+/// The last step of every gated kernel's output row: requantise the blended
+/// Q16 total with the row's record, then apply the layer's activation at the
+/// row's format. The loader has validated every record, so an unreadable one
+/// cannot occur; it would give 0 rather than a panic.
+#[inline(always)]
+pub(crate) fn finish_row(
+    total: i64,
+    record: &[u8; REQUANT_RECORD_LEN],
+    activation: Activation,
+) -> i16 {
+    let r = Requant::from_bytes(record).unwrap_or(Requant {
+        multiplier: 0,
+        pre_shift: 0,
+        post_shift: 0,
+        frac: 0,
+    });
+    let q = requantise(total, &r);
+    match activation {
+        Activation::Identity => q,
+        Activation::Elu => elu_q(q, r.frac),
+    }
+}
+
 impl<'a> DenseLayer<'a> {
     fn row_bytes(&self) -> usize {
         usize::from(self.desc.in_dim) * self.desc.weights.bytes()
@@ -202,17 +225,7 @@ impl<'a> DenseLayer<'a> {
                 let b = bias_at(self.bias, bias_width, usize::from(e) * out + i).unwrap_or(0);
                 total = total.saturating_add(acc.saturating_add(b).saturating_mul(g));
             }
-            let r = Requant::from_bytes(rec).unwrap_or(Requant {
-                multiplier: 0,
-                pre_shift: 0,
-                post_shift: 0,
-                frac: 0,
-            });
-            let q = requantise(total, &r);
-            *yi = match self.desc.activation {
-                Activation::Identity => q,
-                Activation::Elu => elu_q(q, r.frac),
-            };
+            *yi = finish_row(total, rec, self.desc.activation);
         }
         Ok(())
     }

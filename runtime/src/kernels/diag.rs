@@ -4,12 +4,11 @@
 //! an accumulator proof; the blend is done in i64 like the dense kernel's.
 
 use crate::blob::records::bias_at;
-use crate::blob::{Activation, LayerDesc, Requant, WeightFormat, REQUANT_RECORD_LEN};
+use crate::blob::{LayerDesc, WeightFormat, REQUANT_RECORD_LEN};
 use crate::error::{Error, Result};
-use crate::fixed::elu::elu_q;
 use crate::fixed::gate::Gate;
 use crate::kernels::cp::i16_at;
-use crate::kernels::dense::requantise;
+use crate::kernels::dense::finish_row;
 
 /// A validated diagonal layer.
 #[derive(Clone, Copy, Debug)]
@@ -58,17 +57,7 @@ impl DiagLayer<'_> {
                 let v = (self.weight(k, i) * i64::from(xi)).saturating_add(b);
                 total = total.saturating_add(v.saturating_mul(i64::from(g)));
             }
-            let r = Requant::from_bytes(rec).unwrap_or(Requant {
-                multiplier: 0,
-                pre_shift: 0,
-                post_shift: 0,
-                frac: 0,
-            });
-            let q = requantise(total, &r);
-            *yi = match self.desc.activation {
-                Activation::Identity => q,
-                Activation::Elu => elu_q(q, r.frac),
-            };
+            *yi = finish_row(total, rec, self.desc.activation);
         }
         Ok(())
     }
