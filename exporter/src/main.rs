@@ -82,7 +82,8 @@ enum Command {
     Style(exporter::style::cli::StyleArgs),
     /// Print a style blob's header; exits non-zero if the blob is invalid.
     StyleInspect(exporter::style::cli::StyleInspectArgs),
-    /// Print a blob's header; exits non-zero if the blob is invalid.
+    /// Print a blob's header (model or style blob), per layer its op
+    /// (dense, cp rank R, diagonal) and MACs; exits non-zero if the blob is invalid.
     Inspect {
         /// The blob.
         blob: PathBuf,
@@ -221,6 +222,13 @@ fn inspect(path: &Path) -> Result<()> {
             print!("{}", exporter::inspect::describe(&model));
             Ok(())
         }
+        Err(phasegate::Error::NotAModel) => match phasegate::Style::from_bytes(&bytes) {
+            Ok(style) => {
+                print!("{}", exporter::inspect::describe_style(&style));
+                Ok(())
+            }
+            Err(e) => bail!("{}: {e}", path.display()),
+        },
         Err(e) => bail!("{}: {e}", path.display()),
     }
 }

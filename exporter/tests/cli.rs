@@ -307,3 +307,324 @@ fn inspect_rejects_bad_files_in_one_line() {
     let o = exporter(&["inspect", tmp.path().join("absent.blob").to_str().unwrap()]);
     assert!(!o.status.success() && stderr(&o).contains("absent.blob"));
 }
+
+/// A synthetic "rollout" data set for `small_pfnn`: inputs on a closed
+/// curve through input space (far narrower than the normal samples), the
+/// phase advancing with them, like a controller's.
+fn rollout_data(path: &Path, rows: usize) {
+    let mut x = Vec::new();
+    let mut phase = Vec::new();
+    for t in 0..rows {
+        let a = t as f32 * 0.05;
+        for j in 0..6 {
+            let j = j as f32;
+            x.push(j * 0.1 + 1.5 * (0.8 * (a + j).sin() + 0.3 * (2.0 * a - j).cos()));
+        }
+        phase.push((2.0 * a) % std::f32::consts::TAU);
+    }
+    exporter::npz::write_npz(
+        path,
+        &[
+            ("X", vec![rows as u64, 6], x),
+            ("phase", vec![rows as u64], phase),
+        ],
+    )
+    .unwrap();
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
+}
+
+/// `cp --distill --distill-data`: training on the rollout rows lowers the
+/// loss on their held-out blocks, and more than training on normal samples
+/// alone does; `--distill-normal-fraction 1` is exactly the normal-only
+/// distillation (same samples, same steps) with the rollout rows evaluated.
+#[test]
+fn cp_distill_on_rollout_data_lowers_its_loss() {
+    let tmp = tempfile::tempdir().unwrap();
+    let weights = tmp.path().join("net");
+    small_pfnn(&weights);
+    let data = tmp.path().join("rollouts.npz");
+    rollout_data(&data, 480);
+    let run = |name: &str, extra: &[&str]| {
+        let blob = tmp.path().join(format!("{name}.blob"));
+        let report = tmp.path().join(format!("{name}.json"));
+        let mut args = vec![
+            "cp",
+            "--weights",
+            weights.to_str().unwrap(),
+            "--cp-rank",
+            "2",
+            "--distill",
+            "600",
+            "--distill-samples",
+            "1024",
+            "--distill-lr",
+            "3e-3",
+            "-o",
+            blob.to_str().unwrap(),
+            "--report",
+            report.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let o = exporter(&args);
+        assert!(o.status.success(), "{name}: {}", stderr(&o));
+        (
+            json(&report),
+            String::from_utf8_lossy(&o.stdout).into_owned(),
+        )
+    };
+    let d = data.to_str().unwrap();
+    let (plain, _) = run("plain", &[]);
+    let (normal, _) = run(
+        "normal",
+        &["--distill-data", d, "--distill-normal-fraction", "1"],
+    );
+    let (rollout, text) = run(
+        "rollout",
+        &["--distill-data", d, "--distill-normal-fraction", "0"],
+    );
+    let (mixed, _) = run("mixed", &["--distill-data", d]);
+    let f = |v: &serde_json::Value, path: &[&str]| -> f64 {
+        let mut v = v;
+        for p in path {
+            v = &v[*p];
+        }
+        v.as_f64()
+            .unwrap_or_else(|| panic!("{path:?} missing in {v}"))
+    };
+    // Fraction 1: the same training as without data.
+    let dist = |v: &serde_json::Value, k: &str| f(v, &["distill", k]);
+    assert_eq!(
+        dist(&plain, "held_out_after"),
+        dist(&normal, "held_out_after")
+    );
+    assert!(plain["distill"]["rollout_held_out"].is_null());
+    assert_eq!(dist(&normal, "rollout_samples"), 0.0);
+    assert_eq!(dist(&rollout, "normal_samples"), 0.0);
+    assert_eq!(dist(&rollout, "rollout_samples"), 1024.0);
+    assert_eq!(dist(&mixed, "normal_samples"), 512.0);
+    // 480 rows: blocks of 60, the 8th held out.
+    assert_eq!(dist(&rollout, "rollout_rows"), 420.0);
+    let held = |v: &serde_json::Value, k: &str| f(v, &["distill", "rollout_held_out", k]);
+    assert_eq!(f(&rollout, &["distill", "rollout_held_out", "rows"]), 60.0);
+    // The rollout distribution improves with its own data, and more than
+    // with normal samples only.
+    let (before, after) = (held(&rollout, "before"), held(&rollout, "after"));
+    assert!(after < 0.5 * before, "{before} -> {after}");
+    assert!(
+        after < held(&normal, "after"),
+        "{after} vs {}",
+        held(&normal, "after")
+    );
+    assert!(held(&mixed, "after") < held(&normal, "after"));
+    // Printed, and the same figures in the output-unit table.
+    assert!(text.contains("rollout rows held out (60)"), "{text}");
+    assert!(text.contains("normal samples (512)"), "{text}");
+    let set = &rollout["rollout_sets"][0];
+    assert_eq!(set["rows"], 60);
+    assert!(
+        set["float_vs_dense"]["rel_normalised"].as_f64().unwrap()
+            < set["float_vs_dense_before_distill"]["rel_normalised"]
+                .as_f64()
+                .unwrap()
+    );
+    // Evaluation-only sets are reported too.
+    let (with_eval, _) = run(
+        "eval",
+        &[
+            "--distill-data",
+            d,
+            "--distill-normal-fraction",
+            "0",
+            "--eval-data",
+            d,
+        ],
+    );
+    assert_eq!(with_eval["distill"]["eval"][0]["rows"], 480, "{with_eval}");
+    assert_eq!(with_eval["rollout_sets"].as_array().unwrap().len(), 2);
+}
+
+/// Name, shape and values of one array to write.
+type Array = (&'static str, Vec<u64>, Vec<f32>);
+
+/// Bad rollout data sets fail before any work, in one line naming the
+/// file, and write nothing.
+#[test]
+fn cp_refuses_bad_rollout_data_in_one_line() {
+    let tmp = tempfile::tempdir().unwrap();
+    let weights = tmp.path().join("net");
+    small_pfnn(&weights);
+    let bad = tmp.path().join("bad.npz");
+    let blob = tmp.path().join("out.blob");
+    let cp = |extra: &[&str]| {
+        let mut args = vec![
+            "cp",
+            "--weights",
+            weights.to_str().unwrap(),
+            "--cp-rank",
+            "2",
+            "-o",
+            blob.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        exporter(&args)
+    };
+    let b = bad.to_str().unwrap();
+    let cases: Vec<(Vec<Array>, &str)> = vec![
+        (
+            vec![
+                ("X", vec![4, 5], vec![0.0; 20]),
+                ("phase", vec![4], vec![0.0; 4]),
+            ],
+            "X has 5 columns, the model has 6 inputs",
+        ),
+        (
+            vec![
+                ("X", vec![4, 6], vec![0.0; 24]),
+                ("phase", vec![3], vec![0.0; 3]),
+            ],
+            "phase has shape [3], expected (4,)",
+        ),
+        (
+            vec![
+                ("X", vec![1, 6], vec![0.0, 1.0, f32::NAN, 0.0, 0.0, 0.0]),
+                ("phase", vec![1], vec![0.0]),
+            ],
+            "non-finite value at index 2",
+        ),
+        (vec![("X", vec![1, 6], vec![0.0; 6])], "missing array phase"),
+    ];
+    for (arrays, want) in cases {
+        exporter::npz::write_npz(&bad, &arrays).unwrap();
+        for flag in ["--distill-data", "--eval-data"] {
+            let o = cp(&["--distill", "5", flag, b]);
+            let err = stderr(&o);
+            assert!(!o.status.success(), "{want}");
+            assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+            assert!(err.contains(want) && err.contains("bad.npz"), "{err}");
+            assert!(!blob.exists());
+        }
+    }
+    rollout_data(&bad, 16);
+    // Evaluation only, no distillation: allowed.
+    let o = cp(&["--eval-data", b]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("bad.npz (16)") && !text.contains("distillation:"),
+        "{text}"
+    );
+    std::fs::remove_file(&blob).unwrap();
+    let o = cp(&["--distill-data", b]);
+    assert!(!o.status.success() && stderr(&o).contains("needs --distill"));
+    let o = cp(&[
+        "--distill",
+        "5",
+        "--distill-data",
+        b,
+        "--distill-normal-fraction",
+        "1.5",
+    ]);
+    assert!(!o.status.success() && stderr(&o).contains("between 0 and 1"));
+    assert!(!blob.exists());
+}
+
+/// `inspect` shows each layer's op and MACs, and reads style blobs.
+#[test]
+fn inspect_shows_ops_macs_and_styles() {
+    let tmp = tempfile::tempdir().unwrap();
+    let weights = tmp.path().join("net");
+    small_pfnn(&weights);
+    let w = weights.to_str().unwrap();
+    let path = |n: &str| tmp.path().join(n).to_str().unwrap().to_owned();
+    let base = path("base.blob");
+    let o = exporter(&["pfnn", "--weights", w, "--gating", "cubic", "-o", &base]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cp = path("cp.blob");
+    let o = exporter(&[
+        "cp",
+        "--weights",
+        w,
+        "--cp-rank",
+        "3",
+        "--cp-layers",
+        "1",
+        "-o",
+        &cp,
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let inspect = |p: &str| {
+        let o = exporter(&["inspect", p]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let row = |text: &str, layer: usize| -> Vec<String> {
+        let start = text.lines().position(|l| l.contains("requant@")).unwrap();
+        text.lines()
+            .nth(start + 1 + layer)
+            .unwrap()
+            .split_whitespace()
+            .map(str::to_owned)
+            .collect()
+    };
+    let text = inspect(&base);
+    // Dense cubic layer 0: 4 active experts x 6 x 8.
+    assert_eq!(
+        &row(&text, 0)[..6],
+        ["0", "6", "8", "4", "dense", "192"],
+        "{text}"
+    );
+    let text = inspect(&cp);
+    assert_eq!(&row(&text, 0)[4..6], ["dense", "192"], "{text}");
+    // CP layer 1: rank 3 x (8 + 8 + 4).
+    assert_eq!(
+        &row(&text, 1)[..8],
+        ["1", "8", "8", "4", "cp", "rank", "3", "60"],
+        "{text}"
+    );
+    assert!(text.contains("MACs per frame   412"), "{text}");
+    // A style blob: a diagonal adapter beside layer 1.
+    let adapter = path("ad.npz");
+    exporter::npz::write_npz(
+        Path::new(&adapter),
+        &[(
+            "w",
+            vec![4, 8],
+            (0..32).map(|i| (i % 5) as f32 * 0.05).collect(),
+        )],
+    )
+    .unwrap();
+    let style = path("s.style");
+    let o = exporter(&[
+        "style",
+        "--base",
+        &base,
+        "--base-weights",
+        w,
+        "--adapter",
+        &adapter,
+        "--name",
+        "lean",
+        "-o",
+        &style,
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = inspect(&style);
+    let crc = phasegate::Model::from_bytes(&std::fs::read(&base).unwrap())
+        .unwrap()
+        .header()
+        .payload_crc;
+    assert!(text.contains("style name       \"lean\""), "{text}");
+    assert!(
+        text.contains(&format!("payload CRC-32 {crc:#010x}")),
+        "{text}"
+    );
+    assert!(text.contains("beside layer     1"), "{text}");
+    assert_eq!(
+        &row(&text, 0)[..6],
+        ["0", "8", "8", "4", "diagonal", "32"],
+        "{text}"
+    );
+}

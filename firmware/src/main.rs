@@ -5,11 +5,17 @@
 //! 2. validate the model blob flashed on its own at the MODEL region
 //!    (memory.x); a bad or missing blob is refused with the runtime's typed
 //!    error and exit code [`wire::exit::BAD_MODEL`], never a panic;
-//! 3. if the host loaded an input image at the HOSTIO region, run every
-//!    frame (phase in radians and f32 inputs -> quantise -> integer
-//!    inference -> de-quantise), timing each with SysTick, and write the
-//!    outputs and timings to `phasegate-out.bin` through semihosting;
-//! 4. write the stack high-water mark and exit through semihosting.
+//! 3. add every style blob flashed in the STYLES region (blobs back to
+//!    back at 16-byte aligned offsets, up to the first offset without the
+//!    blob magic) to the styled runtime; a refused style (damaged, built
+//!    for another base, incompatible, too big, bank full) is logged with
+//!    the runtime's typed error and exits with [`wire::exit::BAD_STYLE`];
+//! 4. if the host loaded an input image at the HOSTIO region, run every
+//!    frame (mix -> `set_mix`; phase in radians and f32 inputs -> quantise
+//!    -> integer inference with the frame's adapters -> de-quantise),
+//!    timing each with SysTick, and write the outputs and timings to
+//!    `phasegate-out.bin` through semihosting;
+//! 5. write the stack high-water mark and exit through semihosting.
 //!
 //! Logs are defmt frames on semihosting stdout; `host-sim target` decodes
 //! them. The wire formats and exit codes are in `wire.rs` (shared with
@@ -35,7 +41,8 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m_rt::{entry, exception, ExceptionFrame};
 use defmt::{error, info, Display2Format};
 use defmt_semihosting as _;
-use phasegate::{Model, Phase, Runtime};
+use phasegate::blob::{LayerOp, MAGIC};
+use phasegate::{Model, Phase, Style, StyledRuntime};
 use semihosting::fs::File;
 use semihosting::io::Write as _;
 
@@ -47,6 +54,24 @@ const W: usize = 512;
 /// beyond the 256 KiB RAM region, so this build does not link.
 #[cfg(feature = "oversize-buffers")]
 const W: usize = 1 << 20;
+
+/// Capacity (i16 elements) of the styled runtime's adapter scratch buffer:
+/// a style needs two adapter outputs (for blending) plus a CP adapter's
+/// middle vector, so this holds a rank-64 CP adapter beside a 512-wide
+/// layer (any full or diagonal adapter up to 512 wide). A bigger style is
+/// refused at boot with `BufferTooSmall`.
+const S: usize = 2 * 512 + 64;
+
+/// Styles the bank holds (the STYLES region may hold more; the fifth is
+/// refused with `TooManyStyles`).
+const N: usize = 4;
+
+/// Byte alignment of each style blob's offset in the STYLES region.
+const STYLE_ALIGN: usize = 16;
+
+/// The runtime: the base model, its two activation buffers, the adapter
+/// scratch buffer and the bank of styles.
+type Rt = StyledRuntime<'static, W, S, N>;
 
 /// A `static` handed out once as `&'static mut` (no heap, no `static mut`).
 /// Holds either a value written at run time or a constant initial value
@@ -112,7 +137,7 @@ struct Io {
     record: [u8; 8 + 6 * W],
 }
 
-static RUNTIME: Slot<Runtime<'static, W>> = Slot::empty();
+static RUNTIME: Slot<Rt> = Slot::empty();
 static IO: Slot<Io> = Slot::with(Io {
     inputs: [0.0; W],
     inputs_q: [0; W],
@@ -124,6 +149,8 @@ static IO: Slot<Io> = Slot::with(Io {
 extern "C" {
     static _phasegate_model_start: u8;
     static _phasegate_model_end: u8;
+    static _phasegate_styles_start: u8;
+    static _phasegate_styles_end: u8;
     static _phasegate_hostio_start: u8;
     static _phasegate_hostio_end: u8;
 }
@@ -167,13 +194,18 @@ fn main() -> ! {
         calib_ticks
     );
 
-    // SAFETY: the MODEL and HOSTIO regions are reserved in memory.x, filled
-    // by the loader before reset and never written by the firmware.
-    let (model_region, hostio) = unsafe {
+    // SAFETY: the MODEL, STYLES and HOSTIO regions are reserved in
+    // memory.x, filled by the loader before reset and never written by the
+    // firmware.
+    let (model_region, styles_region, hostio) = unsafe {
         (
             region(
                 &raw const _phasegate_model_start,
                 &raw const _phasegate_model_end,
+            ),
+            region(
+                &raw const _phasegate_styles_start,
+                &raw const _phasegate_styles_end,
             ),
             region(
                 &raw const _phasegate_hostio_start,
@@ -214,10 +246,13 @@ fn main() -> ! {
         }
     };
     info!(
-        "runtime ready: {=usize} B activation buffers, the model needs {=usize} B",
-        Runtime::<'static, W>::CAPACITY_BYTES,
+        "runtime ready: {=usize} B activation and adapter buffers, {=usize} B with the bank of {=usize} styles; the model needs {=usize} B",
+        Rt::CAPACITY_BYTES,
+        core::mem::size_of::<Rt>(),
+        N,
         rt.model().ram_bytes()
     );
+    load_styles(rt, styles_region);
 
     let (input, records) = match wire::InputHeader::parse(hostio) {
         Ok(v) => v,
@@ -289,10 +324,30 @@ fn main() -> ! {
     let mut frames_done = 0u32;
     for (i, rec) in records.chunks_exact(input.record_len()).enumerate() {
         let t0 = measure::now();
-        let Some(radians) = wire::read_record(rec, inputs) else {
+        let Some(input_record) = wire::read_record(rec, inputs) else {
             exit(wire::exit::BAD_INPUT)
         };
-        let prepared = Phase::from_radians(radians).and_then(|phase| {
+        let mix = match wire::decode_mix(&input_record.mix) {
+            Ok(mix) => mix,
+            Err(e) => {
+                // defmt's own formatting only: `WireError`'s `Display`
+                // pulls in u64 formatting (about 1.5 KB of .text).
+                error!("frame {=usize}: mix field refused: {}", i, e);
+                exit(wire::exit::FRAME_ERROR);
+            }
+        };
+        if let Err(e) = rt.set_mix(mix) {
+            // (Not `mix` itself: its defmt impl formats the blend weight
+            // through `core::fmt` and `fixed`, about 5 KB of .text.)
+            error!(
+                "frame {=usize}: mix refused: {} ({})",
+                i,
+                e,
+                Display2Format(&e)
+            );
+            exit(wire::exit::FRAME_ERROR);
+        }
+        let prepared = Phase::from_radians(input_record.phase).and_then(|phase| {
             rt.quantise_input(inputs, inputs_q)?;
             Ok(phase)
         });
@@ -339,17 +394,83 @@ fn main() -> ! {
 }
 
 /// Makes the runtime and moves it into its static. Not inlined, so the
-/// transient `Runtime` value lives in this short-lived frame rather than in
-/// `main`'s, which stays on the stack for the whole run.
+/// transient `StyledRuntime` value lives in this short-lived frame rather
+/// than in `main`'s, which stays on the stack for the whole run.
 #[inline(never)]
-fn init_runtime(
-    model: Model<'static>,
-) -> Result<&'static mut Runtime<'static, W>, phasegate::Error> {
-    let rt = Runtime::<'static, W>::new(model)?;
+fn init_runtime(model: Model<'static>) -> Result<&'static mut Rt, phasegate::Error> {
+    let rt = Rt::new(model)?;
     match RUNTIME.init(rt) {
         Some(rt) => Ok(rt),
         None => exit(wire::exit::PANIC),
     }
+}
+
+/// Adds every style blob in the STYLES region to the runtime, in order
+/// (style id = position): blobs start at 16-byte aligned offsets, and the
+/// list ends at the first offset that does not start with the blob magic
+/// (erased or zero memory) or at the end of the region. Logs each style;
+/// exits with [`wire::exit::BAD_STYLE`] on the first one refused.
+#[inline(never)]
+fn load_styles(rt: &mut Rt, styles: &'static [u8]) {
+    let base = styles.as_ptr() as u32;
+    let mut offset = 0usize;
+    while let Some(rest) = styles.get(offset..) {
+        if rest.get(..MAGIC.len()) != Some(&MAGIC[..]) {
+            break;
+        }
+        let addr = base.wrapping_add(offset as u32);
+        let index = rt.styles().len();
+        let added = Style::from_region(rest).and_then(|s| Ok((rt.add_style(s)?, s)));
+        let (id, style) = match added {
+            Ok(v) => v,
+            Err(e) => {
+                error!(
+                    "style {=usize} at {=u32:#010x} refused: {} ({})",
+                    index,
+                    addr,
+                    e,
+                    Display2Format(&e)
+                );
+                exit(wire::exit::BAD_STYLE);
+            }
+        };
+        let desc = style.kernel().desc();
+        info!(
+            "style {=u8} at {=u32:#010x}: \"{=str}\", {=usize} bytes, beside layer {=u8}, {=u64} MACs per frame",
+            id.0,
+            addr,
+            style.name(),
+            style.blob_len(),
+            style.layer(),
+            style.macs_per_frame()
+        );
+        match desc.op {
+            LayerOp::Cp { rank, .. } => info!(
+                "style {=u8}: CP adapter {=u16} -> {=u16}, rank {=u16}, {} weights",
+                id.0, desc.in_dim, desc.out_dim, rank, desc.weights
+            ),
+            LayerOp::Diagonal => info!(
+                "style {=u8}: diagonal adapter {=u16} -> {=u16}, {} weights",
+                id.0, desc.in_dim, desc.out_dim, desc.weights
+            ),
+            LayerOp::Dense => info!(
+                "style {=u8}: full adapter {=u16} -> {=u16}, {} weights",
+                id.0, desc.in_dim, desc.out_dim, desc.weights
+            ),
+        }
+        let next = offset
+            .checked_add(style.blob_len())
+            .and_then(|end| end.checked_next_multiple_of(STYLE_ALIGN));
+        match next {
+            Some(n) => offset = n,
+            None => break,
+        }
+    }
+    info!(
+        "{=usize} styles in the STYLES region at {=u32:#010x}",
+        rt.styles().len(),
+        base
+    );
 }
 
 /// Measures the stack, writes the trailer (when there is an output file) and

@@ -2,28 +2,50 @@
 //! compiles this file as its `wire` module and host-sim includes the same
 //! file with `#[path]`, so both ends read and write one definition).
 //!
-//! Only `core`, no `unsafe`, no allocation. All integers and floats are
-//! little-endian. Specified in `docs/firmware.md`.
+//! Only `core` and `phasegate`'s [`Mix`] type, no `unsafe`, no allocation.
+//! All integers and floats are little-endian. Specified in
+//! `docs/firmware.md`.
 //!
-//! Host -> firmware: the **input image**, loaded raw at the start of the
-//! HOSTIO region (memory.x) with `-device loader,file=...,force-raw=on`:
+//! Host -> firmware: the **input image** (version 2), loaded raw at the start
+//! of the HOSTIO region (memory.x) with `-device loader,file=...,force-raw=on`:
 //!
 //! | offset | size | field |
 //! |---|---|---|
 //! | 0 | 4 | magic `PGIN` |
-//! | 4 | 2 | version (1) |
+//! | 4 | 2 | version (2) |
 //! | 6 | 2 | header length (32): the first record starts here |
 //! | 8 | 4 | frames N |
 //! | 12 | 4 | input dim I |
 //! | 16 | 4 | output dim O (what the host expects the model to produce) |
-//! | 20 | 4 | record length = 4 + 4 I |
+//! | 20 | 4 | record length = 12 + 4 I |
 //! | 24 | 4 | CRC-32 (ISO-HDLC) of the N records |
 //! | 28 | 4 | reserved, 0 |
 //!
-//! then N records: phase (f32, radians), I inputs (f32, model units).
+//! then N records: the frame's mix (8 bytes, below), phase (f32, radians),
+//! I inputs (f32, model units).
 //!
-//! Firmware -> host: the **output file** `phasegate-out.bin`, written through
-//! semihosting in QEMU's working directory: a 32-byte header
+//! The **mix field** says which style adapters the frame uses
+//! ([`Mix`]; the firmware calls `StyledRuntime::set_mix` with it before the
+//! frame). Style ids are the order of the style blobs in the STYLES region
+//! (0 = first):
+//!
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 1 | kind: 0 = `Base` (no adapter), 1 = `One(a)`, 2 = `Blend { from: a, to: b, weight }` |
+//! | 1 | 1 | a: style id (`One`, `Blend`), else 0 |
+//! | 2 | 1 | b: style id (`Blend`), else 0 |
+//! | 3 | 1 | reserved, 0 |
+//! | 4 | 2 | weight (`Blend`): U1F15 bits, 0 ..= 0x8000 (0.0 ..= 1.0), else 0 |
+//! | 6 | 2 | reserved, 0 |
+//!
+//! Any other kind, a non-zero byte in a field the kind does not use, or a
+//! weight above 0x8000 is malformed ([`WireError::UnknownMixKind`],
+//! [`WireError::BadMixField`]); a well-formed id of a style that was not
+//! loaded is refused by the runtime (`Error::UnknownStyle`). Either way the
+//! firmware stops at that frame with [`exit::FRAME_ERROR`].
+//!
+//! Firmware -> host: the **output file** `phasegate-out.bin` (version 1),
+//! written through semihosting in QEMU's working directory: a 32-byte header
 //! (`PGOT`, version, header length, N, O, record length = 8 + 6 O, the
 //! input image's CRC, 8 reserved bytes), N records (u32 inference ticks,
 //! u32 whole-frame ticks, O i16 quantised outputs, O f32 de-quantised
@@ -31,14 +53,25 @@
 //! bytes, stack size bytes, calibration ticks, calibration instructions,
 //! 8 reserved bytes).
 
+use phasegate::style::BlendWeight;
+use phasegate::{Mix, StyleId};
+
 /// Magic of the input image.
 pub const INPUT_MAGIC: [u8; 4] = *b"PGIN";
 /// Magic of the output file.
 pub const OUTPUT_MAGIC: [u8; 4] = *b"PGOT";
 /// Magic of the output file's trailer.
 pub const TRAILER_MAGIC: [u8; 4] = *b"PGND";
-/// Version of both formats.
-pub const VERSION: u16 = 1;
+/// Version of the input image (2: a mix field starts every record).
+pub const INPUT_VERSION: u16 = 2;
+/// Version of the output file.
+pub const OUTPUT_VERSION: u16 = 1;
+/// Bytes of a record's mix field.
+pub const MIX_LEN: usize = 8;
+/// Bytes of a record before its inputs: the mix field and the phase.
+pub const RECORD_HEAD_LEN: usize = MIX_LEN + 4;
+/// Largest blend weight on the wire: U1F15 bits of 1.0.
+pub const MAX_BLEND_BITS: u16 = 0x8000;
 /// Length of every header and of the trailer.
 pub const HEADER_LEN: usize = 32;
 /// File name of the output file, relative to QEMU's working directory.
@@ -52,6 +85,15 @@ pub enum WireError {
     BadMagic,
     /// A version this code does not read.
     UnsupportedVersion(u16),
+    /// A record's mix field has a kind other than 0 (base), 1 (one style)
+    /// or 2 (blend).
+    UnknownMixKind(u8),
+    /// A record's mix field has a non-zero byte in a field its kind does
+    /// not use, or a blend weight above 1.0 (0x8000).
+    BadMixField {
+        /// Offset of the offending byte within the 8-byte mix field.
+        offset: u8,
+    },
     /// The header length, record length or dimensions are inconsistent.
     BadHeader,
     /// The records end past the available bytes.
@@ -69,9 +111,15 @@ impl core::fmt::Display for WireError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match *self {
             WireError::BadMagic => f.write_str("bad magic (nothing loaded there?)"),
-            WireError::UnsupportedVersion(v) => {
-                write!(f, "unsupported version {v} (this reads {VERSION})")
-            }
+            WireError::UnsupportedVersion(v) => write!(f, "unsupported version {v}"),
+            WireError::UnknownMixKind(k) => write!(
+                f,
+                "unknown mix kind {k} (0 = base, 1 = one style, 2 = blend)"
+            ),
+            WireError::BadMixField { offset } => write!(
+                f,
+                "malformed mix field: byte {offset} must be 0 for this kind, or the blend weight exceeds 1.0"
+            ),
             WireError::BadHeader => f.write_str("inconsistent header"),
             WireError::Truncated { needed, available } => {
                 write!(f, "truncated: needs {needed} bytes, has {available}")
@@ -107,7 +155,7 @@ fn put_u16(b: &mut [u8], at: usize, v: u16) {
     }
 }
 
-fn check_preamble(b: &[u8], magic: [u8; 4]) -> Result<(), WireError> {
+fn check_preamble(b: &[u8], magic: [u8; 4], version: u16) -> Result<(), WireError> {
     if b.len() < HEADER_LEN {
         return Err(WireError::Truncated {
             needed: HEADER_LEN as u64,
@@ -117,9 +165,9 @@ fn check_preamble(b: &[u8], magic: [u8; 4]) -> Result<(), WireError> {
     if b.get(..4) != Some(&magic[..]) {
         return Err(WireError::BadMagic);
     }
-    let version = u16_at(b, 4);
-    if version != VERSION {
-        return Err(WireError::UnsupportedVersion(version));
+    let found = u16_at(b, 4);
+    if found != version {
+        return Err(WireError::UnsupportedVersion(found));
     }
     if usize::from(u16_at(b, 6)) != HEADER_LEN {
         return Err(WireError::BadHeader);
@@ -155,9 +203,9 @@ pub struct InputHeader {
 }
 
 impl InputHeader {
-    /// Bytes of one record: the phase and the inputs.
+    /// Bytes of one record: the mix field, the phase and the inputs.
     pub fn record_len(&self) -> usize {
-        4 + 4 * self.input_dim as usize
+        RECORD_HEAD_LEN + 4 * self.input_dim as usize
     }
 
     /// Bytes of the whole image.
@@ -169,7 +217,7 @@ impl InputHeader {
     pub fn encode(&self) -> [u8; HEADER_LEN] {
         let mut b = [0u8; HEADER_LEN];
         b[..4].copy_from_slice(&INPUT_MAGIC);
-        put_u16(&mut b, 4, VERSION);
+        put_u16(&mut b, 4, INPUT_VERSION);
         put_u16(&mut b, 6, HEADER_LEN as u16);
         put_u32(&mut b, 8, self.frames);
         put_u32(&mut b, 12, self.input_dim);
@@ -182,7 +230,7 @@ impl InputHeader {
     /// Parses and checks the header at the start of `region` (which may be
     /// longer than the image); returns it and the records' bytes, CRC checked.
     pub fn parse(region: &[u8]) -> Result<(InputHeader, &[u8]), WireError> {
-        check_preamble(region, INPUT_MAGIC)?;
+        check_preamble(region, INPUT_MAGIC, INPUT_VERSION)?;
         let h = InputHeader {
             frames: u32_at(region, 8),
             input_dim: u32_at(region, 12),
@@ -212,17 +260,100 @@ impl InputHeader {
     }
 }
 
-/// Reads one input record: returns the phase in radians and writes the
-/// inputs to `inputs` (whose length must be the input dim).
-pub fn read_record(record: &[u8], inputs: &mut [f32]) -> Option<f32> {
-    if record.len() != 4 + 4 * inputs.len() {
+/// One input record, read: the raw mix field, and the phase in radians.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InputRecord {
+    /// The mix field's bytes (decode with [`decode_mix`]).
+    pub mix: [u8; MIX_LEN],
+    /// Phase, radians.
+    pub phase: f32,
+}
+
+/// Reads one input record: returns its mix field and phase and writes the
+/// inputs to `inputs` (whose length must be the input dim); `None` on a
+/// length mismatch.
+pub fn read_record(record: &[u8], inputs: &mut [f32]) -> Option<InputRecord> {
+    if record.len() != RECORD_HEAD_LEN + 4 * inputs.len() {
         return None;
     }
-    let phase = f32::from_bits(u32_at(record, 0));
+    let mix = record.get(..MIX_LEN)?.try_into().ok()?;
+    let phase = f32::from_bits(u32_at(record, MIX_LEN));
     for (i, x) in inputs.iter_mut().enumerate() {
-        *x = f32::from_bits(u32_at(record, 4 + 4 * i));
+        *x = f32::from_bits(u32_at(record, RECORD_HEAD_LEN + 4 * i));
     }
-    Some(phase)
+    Some(InputRecord { mix, phase })
+}
+
+/// Writes one input record (mix field, phase, inputs) to the end of `out`.
+pub fn encode_input_record(
+    mix: &[u8; MIX_LEN],
+    phase: f32,
+    inputs: &[f32],
+    out: &mut impl Extend<u8>,
+) {
+    out.extend(mix.iter().copied());
+    out.extend(phase.to_bits().to_le_bytes());
+    for x in inputs {
+        out.extend(x.to_bits().to_le_bytes());
+    }
+}
+
+/// The mix field of `mix`. Encodes what it is given: a blend weight above
+/// 1.0 is written as is (and refused by [`decode_mix`]).
+pub fn encode_mix(mix: Mix) -> [u8; MIX_LEN] {
+    let mut b = [0u8; MIX_LEN];
+    match mix {
+        Mix::Base => {}
+        Mix::One(StyleId(a)) => {
+            b[0] = 1;
+            b[1] = a;
+        }
+        Mix::Blend {
+            from: StyleId(a),
+            to: StyleId(c),
+            weight,
+        } => {
+            b[0] = 2;
+            b[1] = a;
+            b[2] = c;
+            put_u16(&mut b, 4, weight.to_bits());
+        }
+    }
+    b
+}
+
+/// Decodes and checks a mix field (see the table in the module docs).
+pub fn decode_mix(b: &[u8; MIX_LEN]) -> Result<Mix, WireError> {
+    let [kind, a, c, ..] = *b;
+    let weight = u16_at(b, 4);
+    // Bytes the kind uses; every other byte must be 0.
+    let used: [bool; MIX_LEN] = match kind {
+        0 => [true, false, false, false, false, false, false, false],
+        1 => [true, true, false, false, false, false, false, false],
+        2 => [true, true, true, false, true, true, false, false],
+        k => return Err(WireError::UnknownMixKind(k)),
+    };
+    for (offset, (&byte, &is_used)) in b.iter().zip(&used).enumerate() {
+        if byte != 0 && !is_used {
+            return Err(WireError::BadMixField {
+                offset: offset as u8,
+            });
+        }
+    }
+    Ok(match kind {
+        0 => Mix::Base,
+        1 => Mix::One(StyleId(a)),
+        _ => {
+            if weight > MAX_BLEND_BITS {
+                return Err(WireError::BadMixField { offset: 4 });
+            }
+            Mix::Blend {
+                from: StyleId(a),
+                to: StyleId(c),
+                weight: BlendWeight::from_bits(weight),
+            }
+        }
+    })
 }
 
 /// Header of the output file.
@@ -246,7 +377,7 @@ impl OutputHeader {
     pub fn encode(&self) -> [u8; HEADER_LEN] {
         let mut b = [0u8; HEADER_LEN];
         b[..4].copy_from_slice(&OUTPUT_MAGIC);
-        put_u16(&mut b, 4, VERSION);
+        put_u16(&mut b, 4, OUTPUT_VERSION);
         put_u16(&mut b, 6, HEADER_LEN as u16);
         put_u32(&mut b, 8, self.frames);
         put_u32(&mut b, 12, self.output_dim);
@@ -257,7 +388,7 @@ impl OutputHeader {
 
     /// Parses the header at the start of `file`.
     pub fn parse(file: &[u8]) -> Result<OutputHeader, WireError> {
-        check_preamble(file, OUTPUT_MAGIC)?;
+        check_preamble(file, OUTPUT_MAGIC, OUTPUT_VERSION)?;
         let h = OutputHeader {
             frames: u32_at(file, 8),
             output_dim: u32_at(file, 12),
@@ -378,12 +509,17 @@ pub mod exit {
     pub const BAD_MODEL: i32 = 2;
     /// The input image in the HOSTIO region was refused.
     pub const BAD_INPUT: i32 = 3;
-    /// The runtime refused a frame (NaN/inf input or phase, wrong length).
+    /// The runtime refused a frame (NaN/inf input or phase, wrong length),
+    /// or its mix (malformed mix field, or an id of a style not loaded).
     pub const FRAME_ERROR: i32 = 4;
     /// Writing the output file through semihosting failed.
     pub const OUTPUT_ERROR: i32 = 5;
     /// A hard fault (bad memory access, ...) or an unexpected interrupt.
     pub const HARD_FAULT: i32 = 6;
+    /// A style blob in the STYLES region was refused (damaged, built for
+    /// another base model, incompatible with it, or too big for the
+    /// firmware's scratch buffer or bank).
+    pub const BAD_STYLE: i32 = 7;
 
     /// One line saying what an exit code means.
     pub fn describe(code: i32) -> &'static str {
@@ -392,9 +528,10 @@ pub mod exit {
             PANIC => "firmware panicked",
             BAD_MODEL => "model blob refused",
             BAD_INPUT => "input image refused",
-            FRAME_ERROR => "runtime refused a frame",
+            FRAME_ERROR => "runtime refused a frame or its mix",
             OUTPUT_ERROR => "could not write the output file",
             HARD_FAULT => "hard fault or unexpected interrupt",
+            BAD_STYLE => "style blob refused",
             _ => "unknown exit code",
         }
     }

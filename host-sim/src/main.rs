@@ -100,6 +100,17 @@ enum Command {
         /// float32 (N,) phases in radians.
         #[arg(long, requires = "inputs")]
         phases: Option<PathBuf>,
+        /// A style blob for the model, flashed in the STYLES region; repeat
+        /// for more (style id = order given).
+        #[arg(long = "style", value_name = "FILE")]
+        styles: Vec<PathBuf>,
+        /// Mix of each frame: `base`, a style id (`0`), `blend:FROM:TO:WEIGHT`,
+        /// a comma-separated list repeated over the frames (`ITEM*N` = N
+        /// frames), or `cycle[:STEP]` (base, 0, 1, blend 0->1 at weights 0,
+        /// 0.25, 0.5, 0.75, 1; STEP frames each, default 2). Default: base;
+        /// `base*2,0*2` with one --style; cycle with two or more.
+        #[arg(long, value_name = "SPEC")]
+        mix: Option<host_sim::target::MixSpec>,
     },
     /// Check the firmware's log snapshots (firmware/snapshots), or bless new ones.
     FirmwareSnapshots {
@@ -111,6 +122,8 @@ enum Command {
     Rollout(host_sim::rollout::RolloutArgs),
     /// Per-frame and summary errors between two rollouts of the same script.
     RolloutCompare(host_sim::rollout::RolloutCompareArgs),
+    /// The float controller's network inputs and phases over scripts (.npz), for `exporter cp --distill-data`.
+    RolloutDataset(host_sim::rollout::dataset::RolloutDatasetArgs),
     /// Draw skeleton snapshots of one or two rollouts (PNG).
     Render(host_sim::render::RenderArgs),
     /// Plot the errors between two rollouts against frame number (PNG).
@@ -242,12 +255,16 @@ fn run(cli: Cli) -> Result<()> {
             frames,
             inputs,
             phases,
+            styles,
+            mix,
         } => {
             host_sim::target::run_target(&host_sim::target::TargetArgs {
                 model,
                 frames,
                 inputs,
                 phases,
+                styles,
+                mix,
             })?;
             Ok(())
         }
@@ -260,6 +277,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Rollout(args) => host_sim::rollout::rollout_cmd(&args),
         Command::RolloutCompare(args) => host_sim::rollout::rollout_compare_cmd(&args),
+        Command::RolloutDataset(args) => host_sim::rollout::dataset::rollout_dataset_cmd(&args),
         Command::Render(args) => host_sim::render::render_cmd(&args),
         Command::PlotErrors(args) => host_sim::render::plot_errors_cmd(&args),
         Command::Fidelity(args) => host_sim::rollout::fidelity::fidelity_cmd(&args),

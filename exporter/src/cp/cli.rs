@@ -6,9 +6,11 @@ use phasegate::blob::WeightFormat;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
-use crate::calibrate::normal_inputs;
+use crate::calibrate::{normal_inputs, Samples};
 use crate::cp::als::{AlsOptions, AlsResult};
-use crate::cp::distill::{distill, DistillOptions, DistillReport};
+use crate::cp::distill::{
+    distill, DistillData, DistillOptions, DistillReport, DEFAULT_NORMAL_FRACTION,
+};
 use crate::cp::float::{CpLayer, FloatNet, NetLayer};
 use crate::cp::import::{read_cp_net, write_cp_net};
 use crate::cp::report::{
@@ -66,12 +68,30 @@ pub struct CpArgs {
     #[arg(long, value_delimiter = ',')]
     pub cp_layers: Option<Vec<usize>>,
     /// Fine-tune the factors for this many Adam steps to match the dense
-    /// model's outputs on inputs drawn from its normalisation statistics.
+    /// model's outputs on inputs drawn from its normalisation statistics
+    /// (and from --distill-data).
     #[arg(long, default_value_t = 0)]
     pub distill: usize,
-    /// Samples drawn for distillation.
+    /// Size of the distillation training set.
     #[arg(long, default_value_t = 4096)]
     pub distill_samples: usize,
+    /// Adam learning rate of distillation (cosine-decayed to a tenth).
+    #[arg(long, default_value_t = 3e-4)]
+    pub distill_lr: f64,
+    /// Rollout inputs to distil on (.npz with X (N, inputs) in model units
+    /// and phase (N,) in radians, as `host-sim rollout-dataset` writes);
+    /// repeat for several files. One block of rows in 8 is held out.
+    #[arg(long)]
+    pub distill_data: Vec<PathBuf>,
+    /// With --distill-data: the share of the training set drawn from the
+    /// normalisation statistics instead (0 = rollout rows only, 1 = normal
+    /// samples only, the rollout rows then only evaluated).
+    #[arg(long, default_value_t = DEFAULT_NORMAL_FRACTION)]
+    pub distill_normal_fraction: f64,
+    /// Rollout data sets (same layout) to evaluate on only: the report
+    /// gives every error on each of them too.
+    #[arg(long)]
+    pub eval_data: Vec<PathBuf>,
     /// Most CP-ALS sweeps per decomposition.
     #[arg(long, default_value_t = 200)]
     pub als_iters: usize,
@@ -113,6 +133,23 @@ pub struct CpLayerSummary {
     pub dense_bytes: usize,
 }
 
+/// Output errors on one set of rollout inputs, in the `cp` report.
+#[derive(Clone, Debug, Serialize)]
+pub struct RolloutSetError {
+    /// "rollout rows held out" or the evaluation file.
+    pub name: String,
+    /// Rows.
+    pub rows: usize,
+    /// Float CP network vs dense float network, before distillation.
+    pub float_vs_dense_before_distill: Option<OutputError>,
+    /// Float CP network vs dense float network.
+    pub float_vs_dense: OutputError,
+    /// The blob vs the float CP network.
+    pub fixed_vs_float: OutputError,
+    /// The blob vs the dense float network.
+    pub fixed_vs_dense: OutputError,
+}
+
 /// The `cp` report.
 #[derive(Clone, Debug, Serialize)]
 pub struct CpExportReport {
@@ -128,6 +165,9 @@ pub struct CpExportReport {
     pub fixed_vs_dense: OutputError,
     /// Distillation, if run.
     pub distill: Option<DistillReport>,
+    /// The same errors on the held-out rollout rows of --distill-data and
+    /// on every --eval-data set (the figures above are on normal samples).
+    pub rollout_sets: Vec<RolloutSetError>,
     /// The blob.
     pub blob: NetExportReport,
 }
@@ -197,6 +237,19 @@ pub fn cp(args: &CpArgs) -> Result<()> {
             bail!("--cp-max-error must be a finite non-negative number");
         }
     }
+    if !args.distill_data.is_empty() && args.distill == 0 {
+        bail!("--distill-data needs --distill STEPS (use --eval-data to evaluate only)");
+    }
+    if !(args.distill_lr.is_finite() && args.distill_lr > 0.0) {
+        bail!("--distill-lr must be a positive number");
+    }
+    let f = args.distill_normal_fraction;
+    if !(0.0..=1.0).contains(&f) {
+        bail!("--distill-normal-fraction must be between 0 and 1, not {f}");
+    }
+    // Read the data sets before the (long) decomposition, so a bad file
+    // fails at once.
+    let data = DistillData::load(&args.distill_data, &args.eval_data, dense.input_dim())?;
     let mut net = FloatNet::from_pfnn(&dense);
     let mut decomposed = Vec::new();
     for &l in &chosen {
@@ -230,9 +283,20 @@ pub fn cp(args: &CpArgs) -> Result<()> {
         1.0,
         0xE7A1,
     );
-    let y_dense = run_float(&FloatNet::from_pfnn(&dense), &s.inputs, &s.phases);
+    let dense_net = FloatNet::from_pfnn(&dense);
+    let y_dense = run_float(&dense_net, &s.inputs, &s.phases);
     let (ym, ys) = (dense.ymean.to_vec(), dense.ystd.to_vec());
+    let mut sets: Vec<(String, &Samples)> = Vec::new();
+    if !data.held_out.inputs.is_empty() {
+        sets.push(("rollout rows held out".into(), &data.held_out));
+    }
+    sets.extend(data.eval.iter().map(|(n, e)| (n.clone(), e)));
+    let sets_dense: Vec<Vec<Vec<f64>>> = sets
+        .iter()
+        .map(|(_, e)| run_float(&dense_net, &e.inputs, &e.phases))
+        .collect();
     let mut before = None;
+    let mut sets_before = vec![None; sets.len()];
     let mut distill_report = None;
     if args.distill > 0 {
         before = Some(output_error(
@@ -241,12 +305,23 @@ pub fn cp(args: &CpArgs) -> Result<()> {
             &ym,
             &ys,
         ));
+        for ((_, e), (b, yd)) in sets.iter().zip(sets_before.iter_mut().zip(&sets_dense)) {
+            *b = Some(output_error(
+                &run_float(&net, &e.inputs, &e.phases),
+                yd,
+                &ym,
+                &ys,
+            ));
+        }
         let (tuned, rep) = distill(
             &dense,
             &net,
+            &data,
             &DistillOptions {
                 steps: args.distill,
                 samples: args.distill_samples.max(1),
+                normal_fraction: f,
+                lr: args.distill_lr,
                 ..DistillOptions::default()
             },
         );
@@ -260,6 +335,21 @@ pub fn cp(args: &CpArgs) -> Result<()> {
     };
     let (blob, blob_report) = export_net(&net, &opts)?;
     let y_fixed = run_blob(&blob, &s.inputs, &s.phases)?;
+    let mut rollout_sets = Vec::new();
+    for (((name, e), yd), b) in sets.iter().zip(&sets_dense).zip(sets_before) {
+        let (yc, yf) = (
+            run_float(&net, &e.inputs, &e.phases),
+            run_blob(&blob, &e.inputs, &e.phases)?,
+        );
+        rollout_sets.push(RolloutSetError {
+            name: name.clone(),
+            rows: e.inputs.len(),
+            float_vs_dense_before_distill: b,
+            float_vs_dense: output_error(&yc, yd, &ym, &ys),
+            fixed_vs_float: output_error(&yf, &yc, &ym, &ys),
+            fixed_vs_dense: output_error(&yf, yd, &ym, &ys),
+        });
+    }
     let report = CpExportReport {
         decomposed,
         float_vs_dense_before_distill: before,
@@ -267,6 +357,7 @@ pub fn cp(args: &CpArgs) -> Result<()> {
         fixed_vs_float: output_error(&y_fixed, &y_cp, &ym, &ys),
         fixed_vs_dense: output_error(&y_fixed, &y_dense, &ym, &ys),
         distill: distill_report,
+        rollout_sets,
         blob: blob_report,
     };
     if let Some(p) = &args.factors_out {
@@ -336,6 +427,49 @@ fn print_cp_summary(r: &CpExportReport, out: &Path) {
         "blob vs float CP: relative {:.5}, rms {:.5}, max {:.4}",
         x.rel_normalised, x.rms, x.max_abs
     );
+    if let Some(d) = &r.distill {
+        println!(
+            "distillation: {} steps on {} inputs ({} normal samples, {} rollout rows drawn from {})",
+            d.options.steps,
+            d.normal_samples + d.rollout_samples,
+            d.normal_samples,
+            d.rollout_samples,
+            d.rollout_rows
+        );
+        println!(
+            "{:<52} {:>10} {:>10}",
+            "held-out loss (mean squared normalised output error)", "before", "after"
+        );
+        let row = |name: &str, rows: usize, b: f64, a: f64| {
+            println!("  {:<50} {b:>10.5} {a:>10.5}", format!("{name} ({rows})"));
+        };
+        row("normal samples", 512, d.held_out_before, d.held_out_after);
+        for h in d.rollout_held_out.iter().chain(&d.eval) {
+            row(&h.name, h.rows, h.before, h.after);
+        }
+    }
+    if !r.rollout_sets.is_empty() {
+        println!(
+            "on rollout inputs: float CP vs dense (relative before, after; rms after) \
+             and blob vs float CP (rms, max), output units"
+        );
+        println!(
+            "  {:<40} {:>10} {:>10} {:>10} {:>10} {:>10}",
+            "", "rel before", "rel after", "rms", "blob rms", "blob max"
+        );
+        for e in &r.rollout_sets {
+            println!(
+                "  {:<40} {:>10} {:>10.4} {:>10.4} {:>10.5} {:>10.4}",
+                format!("{} ({})", e.name, e.rows),
+                e.float_vs_dense_before_distill
+                    .map_or("-".to_string(), |b| format!("{:.4}", b.rel_normalised)),
+                e.float_vs_dense.rel_normalised,
+                e.float_vs_dense.rms,
+                e.fixed_vs_float.rms,
+                e.fixed_vs_float.max_abs
+            );
+        }
+    }
     println!(
         "overflow proof: {}",
         if r.blob.overflow_proof {

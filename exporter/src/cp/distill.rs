@@ -5,14 +5,22 @@
 //!
 //! Loss: mean squared error of the normalised outputs (`(y - Ymean) / Ystd`),
 //! so every output counts in units of its own spread.
+//!
+//! Distillation inputs are drawn from the dense model's normalisation
+//! statistics and, with `--distill-data`, from rollouts of the float
+//! controller (`host-sim rollout-dataset`: arrays [`DATA_INPUTS`] and
+//! [`DATA_PHASES`] of an `.npz`), the inputs the controller actually feeds
+//! the network.
 
+use anyhow::{anyhow, bail, Result};
 use ndarray::{Array1, Array2, ArrayD, ArrayViewMutD, Axis, Zip};
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
+use std::path::{Path, PathBuf};
 
-use crate::calibrate::normal_inputs;
+use crate::calibrate::{normal_inputs, Samples};
 use crate::cp::float::{Adapter, FloatNet, NetLayer};
 use crate::float_pfnn::FloatPfnn;
 
@@ -449,9 +457,13 @@ pub fn train(
 pub struct DistillOptions {
     /// Adam steps.
     pub steps: usize,
-    /// Samples drawn from the normalisation statistics.
+    /// Size of the training set: normal samples and rollout rows together.
     pub samples: usize,
-    /// Their spread (`mean + std N(0,1) spread`).
+    /// Share of the training set drawn from the normalisation statistics
+    /// when rollout data is given (the rest are rollout rows); without
+    /// rollout data every sample is a normal one.
+    pub normal_fraction: f64,
+    /// Spread of the normal samples (`mean + std N(0,1) spread`).
     pub spread: f64,
     /// Minibatch.
     pub batch: usize,
@@ -461,11 +473,15 @@ pub struct DistillOptions {
     pub seed: u64,
 }
 
+/// Default of [`DistillOptions::normal_fraction`] (`--distill-normal-fraction`).
+pub const DEFAULT_NORMAL_FRACTION: f64 = 0.5;
+
 impl Default for DistillOptions {
     fn default() -> Self {
         DistillOptions {
             steps: 1000,
             samples: 4096,
+            normal_fraction: DEFAULT_NORMAL_FRACTION,
             spread: 1.0,
             batch: 64,
             lr: 3e-4,
@@ -474,17 +490,138 @@ impl Default for DistillOptions {
     }
 }
 
+/// Name of the inputs array of a rollout data set (`N x in`, model units).
+pub const DATA_INPUTS: &str = "X";
+/// Name of the phases array of a rollout data set (`N`, radians).
+pub const DATA_PHASES: &str = "phase";
+/// Rows of one held-out block of a rollout data set, at most.
+pub const HELD_OUT_BLOCK: usize = 60;
+/// One block in this many is held out.
+pub const HELD_OUT_EVERY: usize = 8;
+
+/// Reads a rollout data set (`host-sim rollout-dataset`): float32 or
+/// float64 arrays [`DATA_INPUTS`] `(N, input_dim)` and [`DATA_PHASES`]
+/// `(N,)`, every value finite, `N >= 1`. Other arrays are ignored.
+pub fn read_distill_data(path: &Path, input_dim: usize) -> Result<Samples> {
+    let arrays = crate::npz::read_npz(path)?;
+    let name = path.display();
+    let get = |n: &str| {
+        arrays.get(n).ok_or_else(|| {
+            anyhow!("{name}: missing array {n} (a rollout data set has {DATA_INPUTS} (N, inputs) and {DATA_PHASES} (N,))")
+        })
+    };
+    let (x, p) = (get(DATA_INPUTS)?, get(DATA_PHASES)?);
+    let [rows, cols] = x.shape[..] else {
+        bail!(
+            "{name}: {DATA_INPUTS} has shape {:?}, expected (N, {input_dim})",
+            x.shape
+        );
+    };
+    let (rows, cols) = (rows as usize, cols as usize);
+    if cols != input_dim {
+        bail!("{name}: {DATA_INPUTS} has {cols} columns, the model has {input_dim} inputs");
+    }
+    if rows == 0 {
+        bail!("{name}: {DATA_INPUTS} has no rows");
+    }
+    if p.shape != [rows as u64] {
+        bail!(
+            "{name}: {DATA_PHASES} has shape {:?}, expected ({rows},) to match {DATA_INPUTS}",
+            p.shape
+        );
+    }
+    Ok(Samples {
+        inputs: x.data.chunks(cols).map(<[f64]>::to_vec).collect(),
+        phases: p.data.clone(),
+    })
+}
+
+/// Splits `n` rows in file order into training and held-out rows: blocks
+/// of `clamp(n / 8, 1, 60)` consecutive rows (one second of a rollout at
+/// most), every 8th block held out. Whole blocks, because consecutive
+/// frames of a rollout are nearly the same input.
+pub fn held_out_split(n: usize) -> (Vec<usize>, Vec<usize>) {
+    let block = (n / HELD_OUT_EVERY).clamp(1, HELD_OUT_BLOCK);
+    (0..n).partition(|&i| (i / block) % HELD_OUT_EVERY != HELD_OUT_EVERY - 1)
+}
+
+fn pick(s: &Samples, idx: &[usize]) -> Samples {
+    Samples {
+        inputs: idx.iter().map(|&i| s.inputs[i].clone()).collect(),
+        phases: idx.iter().map(|&i| s.phases[i]).collect(),
+    }
+}
+
+fn extend(into: &mut Samples, from: Samples) {
+    into.inputs.extend(from.inputs);
+    into.phases.extend(from.phases);
+}
+
+/// Rollout inputs for [`distill`]: training rows, held-out rows (blocks of
+/// the same files) and evaluation-only sets.
+#[derive(Clone, Debug, Default)]
+pub struct DistillData {
+    /// Training rows of every `--distill-data` file.
+    pub train: Samples,
+    /// Their held-out blocks ([`held_out_split`], per file).
+    pub held_out: Samples,
+    /// Evaluation-only sets (`--eval-data`): name and rows.
+    pub eval: Vec<(String, Samples)>,
+}
+
+impl DistillData {
+    /// Reads and splits `train` files and reads `eval` files (see
+    /// [`read_distill_data`]).
+    pub fn load(train: &[PathBuf], eval: &[PathBuf], input_dim: usize) -> Result<DistillData> {
+        let mut d = DistillData::default();
+        for p in train {
+            let s = read_distill_data(p, input_dim)?;
+            let (t, h) = held_out_split(s.inputs.len());
+            extend(&mut d.train, pick(&s, &t));
+            extend(&mut d.held_out, pick(&s, &h));
+        }
+        for p in eval {
+            d.eval
+                .push((p.display().to_string(), read_distill_data(p, input_dim)?));
+        }
+        Ok(d)
+    }
+}
+
+/// Mean squared normalised output error on one held-out set.
+#[derive(Clone, Debug, Serialize)]
+pub struct HeldOutLoss {
+    /// What the set is.
+    pub name: String,
+    /// Its rows.
+    pub rows: usize,
+    /// Before distillation.
+    pub before: f64,
+    /// After.
+    pub after: f64,
+}
+
 /// What distillation did.
 #[derive(Clone, Debug, Serialize)]
 pub struct DistillReport {
     /// Options used.
     pub options: DistillOptions,
+    /// Normal samples in the training set.
+    pub normal_samples: usize,
+    /// Rollout rows in the training set (repeats included).
+    pub rollout_samples: usize,
+    /// Distinct rollout training rows available.
+    pub rollout_rows: usize,
     /// Losses (mean squared normalised output error on the training set).
     pub train: TrainReport,
-    /// The same on fresh samples, before and after.
+    /// The same on 512 fresh normal samples, before and after.
     pub held_out_before: f64,
     /// After.
     pub held_out_after: f64,
+    /// The same on the held-out rollout rows, if rollout data was given.
+    pub rollout_held_out: Option<HeldOutLoss>,
+    /// The same on each evaluation-only set.
+    pub eval: Vec<HeldOutLoss>,
 }
 
 /// The dense model's normalised outputs on raw samples, as a data set for `net`.
@@ -505,18 +642,48 @@ pub fn teacher_dataset(
     Dataset { x, g, y }
 }
 
+/// How many of `samples` training samples are rollout rows.
+pub fn rollout_share(samples: usize, normal_fraction: f64, rollout_rows: usize) -> usize {
+    if rollout_rows == 0 {
+        return 0;
+    }
+    let f = normal_fraction.clamp(0.0, 1.0);
+    ((1.0 - f) * samples as f64).round() as usize
+}
+
 /// Fine-tunes the CP layers of `net` (dense layers stay as they are) so its
-/// outputs match `dense`'s on inputs drawn from the normalisation statistics.
+/// outputs match `dense`'s on a training set of `opts.samples` inputs: a
+/// share `opts.normal_fraction` drawn from the normalisation statistics,
+/// the rest rows of `data.train` (each row used equally often, +-1; all
+/// normal samples when `data.train` is empty). Losses are reported on 512
+/// fresh normal samples, on `data.held_out` and on every `data.eval` set.
 pub fn distill(
     dense: &FloatPfnn,
     net: &FloatNet,
+    data: &DistillData,
     opts: &DistillOptions,
 ) -> (FloatNet, DistillReport) {
     let stats = (dense.xmean.to_vec(), dense.xstd.to_vec());
-    let s = normal_inputs(&stats.0, &stats.1, opts.samples, opts.spread, opts.seed);
+    let n_roll = rollout_share(opts.samples, opts.normal_fraction, data.train.inputs.len());
+    let n_norm = opts.samples - n_roll.min(opts.samples);
+    let mut s = normal_inputs(&stats.0, &stats.1, n_norm, opts.spread, opts.seed);
+    if n_roll > 0 {
+        let mut perm: Vec<usize> = (0..data.train.inputs.len()).collect();
+        perm.shuffle(&mut ChaCha8Rng::seed_from_u64(opts.seed ^ 0x5A5A));
+        let idx: Vec<usize> = (0..n_roll).map(|i| perm[i % perm.len()]).collect();
+        extend(&mut s, pick(&data.train, &idx));
+    }
     let held = normal_inputs(&stats.0, &stats.1, 512, opts.spread, opts.seed ^ 0xFFFF);
-    let data = teacher_dataset(dense, net, &s.inputs, &s.phases);
-    let held = teacher_dataset(dense, net, &held.inputs, &held.phases);
+    let train_set = teacher_dataset(dense, net, &s.inputs, &s.phases);
+    let teacher = |s: &Samples| teacher_dataset(dense, net, &s.inputs, &s.phases);
+    let held = teacher(&held);
+    let mut sets: Vec<(String, Dataset)> = Vec::new();
+    if !data.held_out.inputs.is_empty() {
+        sets.push(("rollout rows held out".into(), teacher(&data.held_out)));
+    }
+    for (name, e) in &data.eval {
+        sets.push((name.clone(), teacher(e)));
+    }
     let mut tuned = net.clone();
     let layers: Vec<usize> = tuned
         .layers
@@ -526,11 +693,12 @@ pub fn distill(
         .map(|(i, _)| i)
         .collect();
     let held_out_before = loss(&tuned, &[], &held);
+    let before: Vec<f64> = sets.iter().map(|(_, d)| loss(&tuned, &[], d)).collect();
     let train_report = train(
         &mut tuned,
         &layers,
         &mut [],
-        &data,
+        &train_set,
         &TrainOptions {
             steps: opts.steps,
             batch: opts.batch,
@@ -540,13 +708,34 @@ pub fn distill(
         },
     );
     let held_out_after = loss(&tuned, &[], &held);
+    let mut losses = sets
+        .iter()
+        .zip(before)
+        .map(|((name, d), before)| HeldOutLoss {
+            name: name.clone(),
+            rows: d.len(),
+            before,
+            after: loss(&tuned, &[], d),
+        })
+        .collect::<Vec<_>>()
+        .into_iter();
+    let rollout_held_out = if data.held_out.inputs.is_empty() {
+        None
+    } else {
+        losses.next()
+    };
     (
         tuned,
         DistillReport {
             options: opts.clone(),
+            normal_samples: n_norm,
+            rollout_samples: n_roll,
+            rollout_rows: data.train.inputs.len(),
             train: train_report,
             held_out_before,
             held_out_after,
+            rollout_held_out,
+            eval: losses.collect(),
         },
     )
 }
@@ -742,5 +931,110 @@ mod tests {
             },
         );
         assert!(rep.loss_after < 0.8 * rep.loss_before, "{rep:?}");
+    }
+
+    /// Name, shape and values of one array to write.
+    type Array = (&'static str, Vec<u64>, Vec<f32>);
+
+    fn write(path: &Path, arrays: &[Array]) {
+        crate::npz::write_npz(path, arrays).unwrap();
+    }
+
+    /// The rollout data-set reader takes exactly `X (N, in)` and `phase
+    /// (N,)`, finite, and says in one line what is wrong otherwise.
+    #[test]
+    fn rollout_data_reader_refuses_bad_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("d.npz");
+        let x: Vec<f32> = (0..12).map(|i| i as f32 * 0.5).collect();
+        let ph = vec![0.0f32, 1.0, 2.0, 3.0];
+        write(
+            &p,
+            &[
+                ("X", vec![4, 3], x.clone()),
+                ("phase", vec![4], ph.clone()),
+                ("frame", vec![4], vec![0.0; 4]),
+            ],
+        );
+        let s = read_distill_data(&p, 3).unwrap();
+        assert_eq!(s.inputs.len(), 4);
+        assert_eq!(s.inputs[1], vec![1.5, 2.0, 2.5]);
+        assert_eq!(s.phases, vec![0.0, 1.0, 2.0, 3.0]);
+        let mut nan_x = x.clone();
+        nan_x[7] = f32::NAN;
+        let mut inf_p = ph.clone();
+        inf_p[2] = f32::INFINITY;
+        let cases: Vec<(Vec<Array>, &str)> = vec![
+            (vec![("X", vec![4, 3], x.clone())], "missing array phase"),
+            (vec![("phase", vec![4], ph.clone())], "missing array X"),
+            (
+                vec![("X", vec![12], x.clone()), ("phase", vec![4], ph.clone())],
+                "X has shape [12], expected (N, 3)",
+            ),
+            (
+                vec![
+                    ("X", vec![3, 4], x.clone()),
+                    ("phase", vec![3], vec![0.0; 3]),
+                ],
+                "X has 4 columns, the model has 3 inputs",
+            ),
+            (
+                vec![
+                    ("X", vec![4, 3], x.clone()),
+                    ("phase", vec![3], vec![0.0; 3]),
+                ],
+                "phase has shape [3], expected (4,)",
+            ),
+            (
+                vec![
+                    ("X", vec![4, 3], x.clone()),
+                    ("phase", vec![4, 1], ph.clone()),
+                ],
+                "phase has shape [4, 1], expected (4,)",
+            ),
+            (
+                vec![
+                    ("X", vec![0, 3], Vec::new()),
+                    ("phase", vec![0], Vec::new()),
+                ],
+                "X has no rows",
+            ),
+            (
+                vec![("X", vec![4, 3], nan_x), ("phase", vec![4], ph.clone())],
+                "array X has a non-finite value at index 7",
+            ),
+            (
+                vec![("X", vec![4, 3], x.clone()), ("phase", vec![4], inf_p)],
+                "array phase has a non-finite value at index 2",
+            ),
+        ];
+        for (arrays, want) in cases {
+            write(&p, &arrays);
+            let e = format!("{:#}", read_distill_data(&p, 3).unwrap_err());
+            assert!(e.contains(want), "{want}: {e}");
+            assert!(e.contains("d.npz") && !e.contains('\n'), "{e}");
+        }
+        std::fs::write(&p, b"not a zip").unwrap();
+        assert!(read_distill_data(&p, 3).is_err());
+        let absent = dir.path().join("absent.npz");
+        let e = format!("{:#}", read_distill_data(&absent, 3).unwrap_err());
+        assert!(e.contains("absent.npz"), "{e}");
+    }
+
+    #[test]
+    fn held_out_split_takes_whole_blocks() {
+        let (t, h) = held_out_split(3000);
+        assert_eq!(t.len() + h.len(), 3000);
+        assert_eq!(h.len(), 6 * 60);
+        assert_eq!(&h[..3], &[420, 421, 422]);
+        assert!(h.windows(2).filter(|w| w[1] != w[0] + 1).count() == 5);
+        let (t, h) = held_out_split(30);
+        assert_eq!(h, vec![21, 22, 23]);
+        assert_eq!(t.len(), 27);
+        let (t, h) = held_out_split(5);
+        assert!(h.is_empty() && t.len() == 5);
+        assert_eq!(rollout_share(100, 0.25, 10), 75);
+        assert_eq!(rollout_share(100, 0.25, 0), 0);
+        assert_eq!(rollout_share(100, 1.0, 10), 0);
     }
 }

@@ -2,6 +2,7 @@
 //! checked for physical sanity and compared with another rollout.
 
 pub mod compare;
+pub mod dataset;
 pub mod fidelity;
 pub mod metrics;
 pub mod record;

@@ -528,12 +528,12 @@ pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
         ("swing style", &styled_fixed[1].poses, "#2a9d3a"),
         (&blend_label, &blend.poses, "#8a3ab9"),
     ];
-    super::png_side_views(&rows, &frames, &args.out.join("styles.png"))?;
-    let svg = svg_side_views(
-        &rows,
-        &frames,
-        &format!("PFNN with rank-{} CP style adapters (int8 StyledRuntime), held-out script, side views in root space", args.rank),
+    let title = format!(
+        "PFNN with rank-{} CP style adapters (int8 StyledRuntime), held-out script, side views in root space",
+        args.rank
     );
+    super::png_side_views(&rows, &frames, &title, &args.out.join("styles.png"))?;
+    let svg = svg_side_views(&rows, &frames, &title);
     exporter::atomic::write_atomic(&args.out.join("styles.svg"), svg.as_bytes())?;
     let report = DemoReport {
         rank: args.rank,

@@ -8,7 +8,7 @@ pub mod demo;
 use anyhow::{anyhow, Result};
 use exporter::cp::float::{Adapter, FloatNet};
 use phasegate::controller::layout::{INPUTS, JOINTS, OUTPUTS};
-use phasegate::controller::{phase_from_cycles, Command, Locomotion, Network, Pose, Real};
+use phasegate::controller::{Command, Locomotion, Network, Pose, Real};
 use phasegate::{Mix, Model, Style, StyledRuntime};
 use std::f64::consts::TAU;
 use std::fmt::Write as _;
@@ -82,14 +82,11 @@ impl Network<f32> for StyledFixed<'_> {
         x: &[f32; INPUTS],
         y: &mut [f32; OUTPUTS],
     ) -> phasegate::Result<()> {
-        self.rt.run(phase_from_cycles(phase), x, y)
+        self.rt.predict(phase, x, y)
     }
 
     fn mean_output(&self, y: &mut [f32; OUTPUTS]) -> phasegate::Result<()> {
-        for (o, (_, offset)) in y.iter_mut().zip(self.rt.model().output_stage()) {
-            *o = offset;
-        }
-        Ok(())
+        self.rt.mean_output(y)
     }
 }
 
@@ -297,38 +294,46 @@ pub fn svg_side_views(
     s
 }
 
-/// The side views of [`svg_side_views`] as a PNG raster (no text: rows in
-/// the order given, columns at `frames`), for viewers without SVG.
+/// The side views of [`svg_side_views`] as a PNG: the title on top, each
+/// run's name above its row, frame numbers under the first row; the far
+/// (left) limbs lighter.
 pub fn png_side_views(
     runs: &[(&str, &[Pose<f64>], &str)],
     frames: &[usize],
+    title: &str,
     path: &std::path::Path,
 ) -> Result<()> {
-    let (cell_w, cell_h) = (150usize, 230usize);
-    let (w, h) = (cell_w * frames.len(), cell_h * runs.len());
-    let mut img = vec![255u8; w * h * 3];
-    let hex = |c: &str| -> [u8; 3] {
-        let v = u32::from_str_radix(c.trim_start_matches('#'), 16).unwrap_or(0);
+    use crate::render::canvas::{Canvas, BLACK, WHITE};
+    let (cell_w, cell_h, top) = (150.0, 230.0, 34.0);
+    let mut c = Canvas::new(
+        (cell_w * frames.len() as f64) as usize,
+        (top + cell_h * runs.len() as f64) as usize,
+        WHITE,
+    );
+    c.text(8.0, 10.0, title, 2, BLACK);
+    let hex = |code: &str| -> [u8; 3] {
+        let v = u32::from_str_radix(code.trim_start_matches('#'), 16).unwrap_or(0);
         [(v >> 16) as u8, (v >> 8) as u8, v as u8]
     };
-    let mut plot = |x: f64, y: f64, c: [u8; 3], a: f64| {
-        if x < 0.0 || y < 0.0 || x >= w as f64 || y >= h as f64 {
-            return;
-        }
-        let i = (y as usize * w + x as usize) * 3;
-        for k in 0..3 {
-            img[i + k] = (f64::from(img[i + k]) * (1.0 - a) + f64::from(c[k]) * a) as u8;
-        }
-    };
+    let lighter = |rgb: [u8; 3]| rgb.map(|v| (f64::from(v) * 0.45 + 255.0 * 0.55) as u8);
     let parents = phasegate::controller::layout::PARENTS;
-    for (row, (_, poses, colour)) in runs.iter().enumerate() {
-        let c = hex(colour);
+    for (row, (name, poses, colour)) in runs.iter().enumerate() {
+        let (near, far) = (hex(colour), lighter(hex(colour)));
+        let y0 = top + cell_h * row as f64;
+        c.text(8.0, y0 + 6.0, name, 2, near);
         for (col, &f) in frames.iter().enumerate() {
             let Some(p) = poses.get(f) else { continue };
-            let x0 = (cell_w * col + cell_w / 2) as f64;
-            let ground = (cell_h * (row + 1) - 20) as f64;
-            for x in (cell_w * col + 5)..(cell_w * (col + 1) - 5) {
-                plot(x as f64, ground, [190, 190, 190], 1.0);
+            let x0 = cell_w * col as f64 + cell_w / 2.0;
+            let ground = y0 + cell_h - 20.0;
+            let left = cell_w * col as f64;
+            c.line(
+                (left + 5.0, ground),
+                (left + cell_w - 5.0, ground),
+                1.0,
+                [190; 3],
+            );
+            if row == 0 {
+                c.text(left + 5.0, ground + 6.0, &format!("frame {f}"), 1, [120; 3]);
             }
             let r = root_space(p);
             let px = |j: usize| (x0 + 1.1 * r[j][2], ground - 1.1 * r[j][1]);
@@ -336,29 +341,46 @@ pub fn png_side_views(
                 if par < 0 {
                     continue;
                 }
-                let ((ax, ay), (bx, by)) = (px(j), px(par as usize));
-                let left = (1..=5).contains(&j) || (17..=23).contains(&j);
-                let a = if left { 0.45 } else { 1.0 };
-                let n = ((bx - ax).abs().max((by - ay).abs()) * 2.0).ceil().max(1.0) as usize;
-                for t in 0..=n {
-                    let (x, y) = (
-                        ax + (bx - ax) * t as f64 / n as f64,
-                        ay + (by - ay) * t as f64 / n as f64,
-                    );
-                    for dx in -1..=1 {
-                        for dy in -1..=1 {
-                            plot(x + f64::from(dx), y + f64::from(dy), c, a * 0.6);
-                        }
-                    }
-                }
+                let is_left = (1..=5).contains(&j) || (17..=23).contains(&j);
+                let colour = if is_left { far } else { near };
+                c.line(px(j), px(par as usize), 3.0, colour);
             }
         }
     }
-    let file = std::fs::File::create(path).map_err(|e| anyhow!("{}: {e}", path.display()))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w as u32, h as u32);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    let mut writer = enc.write_header().map_err(|e| anyhow!("{e}"))?;
-    writer.write_image_data(&img).map_err(|e| anyhow!("{e}"))?;
-    Ok(())
+    c.save_png(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use phasegate::controller::{Gait, PfnnController};
+
+    /// The PNG has the layout asked for, and its title and row labels are
+    /// drawn (the raster is otherwise white above the first skeletons).
+    #[test]
+    fn side_views_png_has_rows_columns_and_labels() {
+        let model = Model::from_bytes(crate::default_model::BLOB).unwrap();
+        let mut ctl: Box<PfnnController<'_, 512>> = Box::new(PfnnController::new(model).unwrap());
+        let poses: Vec<Pose<f64>> = (0..30)
+            .map(|_| widen(ctl.step(&Command::moving([0.0, 1.5], Gait::Walk)).unwrap()))
+            .collect();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("views.png");
+        let rows: [(&str, &[Pose<f64>], &str); 2] =
+            [("first", &poses, "#1f5fbf"), ("second", &poses, "#d9661f")];
+        png_side_views(&rows, &[5, 15, 25], "title", &path).unwrap();
+        let decoder = png::Decoder::new(std::fs::File::open(&path).unwrap());
+        let mut reader = decoder.read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        assert_eq!((info.width, info.height), (3 * 150, 34 + 2 * 230));
+        let ink = |x0: usize, y0: usize, x1: usize, y1: usize| {
+            (y0..y1).any(|y| {
+                (x0..x1).any(|x| buf[(y * info.width as usize + x) * 3..][..3] != [255; 3])
+            })
+        };
+        assert!(ink(8, 10, 80, 24), "no title");
+        assert!(ink(8, 40, 80, 54), "no label on the first row");
+        assert!(ink(8, 270, 80, 284), "no label on the second row");
+    }
 }

@@ -14,6 +14,8 @@ pub struct ElfInfo {
     pub sections: BTreeMap<String, u64>,
     /// MODEL region `[start, end)` (memory.x).
     pub model: (u64, u64),
+    /// STYLES region `[start, end)` (memory.x).
+    pub styles: (u64, u64),
     /// HOSTIO region `[start, end)` (memory.x).
     pub hostio: (u64, u64),
     /// The ELF's bytes (defmt reads its string table from them).
@@ -50,6 +52,10 @@ impl ElfInfo {
             symbol("_phasegate_model_start")?,
             symbol("_phasegate_model_end")?,
         );
+        let styles = (
+            symbol("_phasegate_styles_start")?,
+            symbol("_phasegate_styles_end")?,
+        );
         let hostio = (
             symbol("_phasegate_hostio_start")?,
             symbol("_phasegate_hostio_end")?,
@@ -57,6 +63,7 @@ impl ElfInfo {
         Ok(ElfInfo {
             sections,
             model,
+            styles,
             hostio,
             bytes,
         })

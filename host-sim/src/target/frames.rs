@@ -1,10 +1,11 @@
 //! The frames fed to the firmware: loaded from `.npy` files, the golden
-//! vectors of the embedded default model, or generated; and the input image
-//! that carries them (see `wire.rs`).
+//! vectors of the embedded default model, or generated; each with the mix
+//! (styles) it uses; and the input image that carries them (see `wire.rs`).
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, ensure, Context, Result};
+use phasegate::Mix;
 
 use super::wire;
 
@@ -20,6 +21,8 @@ pub struct Frames {
     pub inputs: Vec<f32>,
     /// Inputs per frame.
     pub input_dim: usize,
+    /// Mix of each frame (`Mix::Base` unless a schedule is set).
+    pub mixes: Vec<Mix>,
     /// Expected quantised outputs (`N x output_dim`), when the frames are
     /// golden vectors.
     pub expected_q: Option<Vec<i16>>,
@@ -47,6 +50,7 @@ impl Frames {
     pub fn truncate(&mut self, n: usize, output_dim: usize) {
         self.phases.truncate(n);
         self.inputs.truncate(n * self.input_dim);
+        self.mixes.truncate(n);
         if let Some(q) = &mut self.expected_q {
             q.truncate(n * output_dim);
         }
@@ -54,12 +58,23 @@ impl Frames {
 
     /// The input image (header and records) for the firmware.
     pub fn image(&self, output_dim: usize) -> Vec<u8> {
-        let mut records = Vec::with_capacity(self.len() * (4 + 4 * self.input_dim));
-        for i in 0..self.len() {
-            records.extend_from_slice(&self.phases[i].to_bits().to_le_bytes());
-            for x in self.input(i) {
-                records.extend_from_slice(&x.to_bits().to_le_bytes());
-            }
+        let mixes: Vec<[u8; wire::MIX_LEN]> =
+            self.mixes.iter().map(|&m| wire::encode_mix(m)).collect();
+        self.image_with_mix_fields(output_dim, &mixes)
+    }
+
+    /// The input image with the given raw mix fields (one per frame): for
+    /// tests of malformed mixes.
+    pub fn image_with_mix_fields(
+        &self,
+        output_dim: usize,
+        mixes: &[[u8; wire::MIX_LEN]],
+    ) -> Vec<u8> {
+        assert_eq!(mixes.len(), self.len(), "one mix field per frame");
+        let mut records =
+            Vec::with_capacity(self.len() * (wire::RECORD_HEAD_LEN + 4 * self.input_dim));
+        for (i, mix) in mixes.iter().enumerate() {
+            wire::encode_input_record(mix, self.phases[i], self.input(i), &mut records);
         }
         let header = wire::InputHeader {
             frames: self.len() as u32,
@@ -101,6 +116,7 @@ pub fn from_npy(inputs: &Path, phases: &Path, input_dim: usize) -> Result<Frames
         xs[0]
     );
     Ok(Frames {
+        mixes: vec![Mix::Base; p.len()],
         phases: p,
         inputs: x,
         input_dim,
@@ -177,6 +193,7 @@ pub fn generated(n: usize, input_stage: &[(f32, f32)], seed: u64) -> Frames {
         }
     }
     Frames {
+        mixes: vec![Mix::Base; n],
         phases,
         inputs,
         input_dim,

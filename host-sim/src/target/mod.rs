@@ -1,13 +1,16 @@
 //! `host-sim target`: runs the Cortex-M4 firmware (`firmware/`) under
 //! `qemu-system-arm -machine mps2-an386 -icount shift=0` with a model blob
-//! flashed on its own, feeds it frames, and checks every output bit for bit
-//! against the runtime on the host. Reports instructions per frame, MACs
-//! per frame, flash and RAM use, and the firmware's decoded defmt log.
+//! (and optionally style blobs) flashed on their own, feeds it frames, each
+//! with its mix of styles, and checks every output bit for bit against the
+//! styled runtime on the host with the same mix per frame. Reports
+//! instructions per frame, MACs per frame (base and adapters), flash and RAM
+//! use, and the firmware's decoded defmt log.
 //!
 //! How the pieces talk (see `docs/firmware.md`):
-//! - the blob goes to the MODEL region, the input image to HOSTIO, both with
-//!   `-device loader,...,force-raw=on`; their addresses come from the ELF's
-//!   `_phasegate_*` symbols, which memory.x defines;
+//! - the blob goes to the MODEL region, the style blobs (packed into one
+//!   image, [`styles::pack_styles`]) to STYLES, the input image to HOSTIO,
+//!   all with `-device loader,...,force-raw=on`; their addresses come from
+//!   the ELF's `_phasegate_*` symbols, which memory.x defines;
 //! - the firmware logs defmt frames on semihosting stdout, writes its outputs
 //!   and timings to `phasegate-out.bin` in QEMU's working directory
 //!   (`wire.rs`, shared with the firmware), and exits through semihosting
@@ -19,6 +22,8 @@ pub mod frames;
 pub mod log;
 pub mod qemu;
 pub mod snapshot;
+pub mod styles;
+pub mod synthetic;
 #[cfg(test)]
 mod tests;
 /// The host <-> firmware wire format; the same source file the firmware compiles.
@@ -30,12 +35,13 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{bail, ensure, Context, Result};
-use phasegate::{Model, Phase, Runtime};
+use phasegate::{Mix, Model, Phase, Style, StyledRuntime};
 
 pub use build::{build_firmware, cargo_build, firmware_dir, repo_root};
 pub use elf::ElfInfo;
 pub use frames::Frames;
 pub use qemu::qemu_available;
+pub use styles::{MixGroup, MixSpec, StyleFile};
 
 /// Instructions per SysTick tick under `-icount shift=0`: the MPS2 SysTick
 /// runs from the 25 MHz system clock (40 ns) and each instruction takes 1 ns.
@@ -47,6 +53,10 @@ pub const RAM_BUDGET: u64 = 64 * 1024;
 pub const TEXT_BUDGET: u64 = 64 * 1024;
 /// Activation capacity of the host runtime (the firmware's is 512).
 const HOST_W: usize = 8192;
+/// Adapter scratch of the host runtime (the firmware's is 2 x 512 + 64).
+const HOST_S: usize = 4 * HOST_W;
+/// Style bank of the host runtime (the firmware's holds 4).
+const HOST_N: usize = 16;
 
 /// Arguments of `host-sim target`.
 #[derive(Clone, Debug, Default)]
@@ -59,6 +69,12 @@ pub struct TargetArgs {
     pub inputs: Option<PathBuf>,
     /// float32 (N,) phases in radians.
     pub phases: Option<PathBuf>,
+    /// Style blobs, packed in this order into the STYLES region (style id =
+    /// position).
+    pub styles: Vec<PathBuf>,
+    /// Per-frame mix schedule (default: [`MixSpec::default_for`] the number
+    /// of styles).
+    pub mix: Option<MixSpec>,
 }
 
 /// Min, median and max of a series.
@@ -179,8 +195,19 @@ pub struct TargetReport {
     /// Instructions per whole frame (phase and input conversion, inference,
     /// de-quantisation).
     pub frame_instructions: Stats,
-    /// Multiply-accumulates per frame, from the blob header.
+    /// Multiply-accumulates per frame of the base model, from the blob header.
     pub macs_per_frame: u32,
+    /// Each frame's inference instructions and multiply-accumulates (base
+    /// plus the adapters its mix runs).
+    pub per_frame: Vec<(u64, u64)>,
+    /// The style blobs that were flashed.
+    pub styles: Vec<StyleFile>,
+    /// Bytes of the STYLES image, and of the STYLES region.
+    pub styles_image: (usize, u64),
+    /// The mix schedule.
+    pub mix: MixSpec,
+    /// Figures per kind of mix.
+    pub mix_groups: Vec<MixGroup>,
     /// Activation RAM the model needs (header), bytes.
     pub model_ram_bytes: usize,
     /// SysTick ticks the firmware's 40,000-instruction calibration loop took.
@@ -202,9 +229,26 @@ impl TargetReport {
         self.mismatches == 0 && self.golden_mismatches.unwrap_or(0) == 0
     }
 
-    /// Median inference instructions per MAC.
+    /// Inference instructions per MAC of each frame (its own MACs: base
+    /// plus the adapters of its mix): min, median (lower middle), max.
+    pub fn instructions_per_mac_stats(&self) -> (f64, f64, f64) {
+        let mut r: Vec<f64> = self
+            .per_frame
+            .iter()
+            .map(|&(i, m)| i as f64 / m.max(1) as f64)
+            .collect();
+        r.sort_by(f64::total_cmp);
+        match (r.first(), r.last()) {
+            (Some(&min), Some(&max)) => (min, r[(r.len() - 1) / 2], max),
+            _ => (0.0, 0.0, 0.0),
+        }
+    }
+
+    /// Median inference instructions per MAC (each frame against its own
+    /// MACs; without styles, the median inference count over the base's
+    /// MACs).
     pub fn instructions_per_mac(&self) -> f64 {
-        self.infer_instructions.median as f64 / f64::from(self.macs_per_frame.max(1))
+        self.instructions_per_mac_stats().1
     }
 
     /// Issue 4's memory budgets: statics plus stack within [`RAM_BUDGET`],
@@ -250,6 +294,28 @@ impl TargetReport {
             self.model_region / 1024,
             self.model_ram_bytes
         );
+        for (i, st) in self.styles.iter().enumerate() {
+            let _ = writeln!(
+                s,
+                "style {i}: {} ({:?}, {} B, {} adapter{} beside layer {}, {} MACs per frame)",
+                st.path.display(),
+                st.name,
+                st.bytes.len(),
+                st.form,
+                st.rank.map(|r| format!(" rank {r}")).unwrap_or_default(),
+                st.layer,
+                st.macs
+            );
+        }
+        if !self.styles.is_empty() {
+            let _ = writeln!(
+                s,
+                "styles image: {} B of the {} KiB STYLES region; mix schedule: {}",
+                self.styles_image.0,
+                self.styles_image.1 / 1024,
+                self.mix
+            );
+        }
         let _ = writeln!(s, "frames: {} from {}", self.frames, self.source);
         if self.mismatches == 0 {
             let _ = writeln!(
@@ -299,12 +365,51 @@ impl TargetReport {
             "instructions per frame (whole frame, with input quantisation and output de-quantisation): min {} median {} max {}",
             f.min, f.median, f.max
         );
-        let _ = writeln!(
-            s,
-            "MACs per frame: {} ; {:.3} instructions per MAC (median inference)",
-            self.macs_per_frame,
-            self.instructions_per_mac()
-        );
+        if self.mix_groups.iter().all(|g| g.label == "base") {
+            let _ = writeln!(
+                s,
+                "MACs per frame: {} ; {:.3} instructions per MAC (median inference)",
+                self.macs_per_frame,
+                self.instructions_per_mac()
+            );
+        } else {
+            let macs = Stats::of(&self.per_frame.iter().map(|p| p.1).collect::<Vec<_>>());
+            let (lo, med, hi) = self.instructions_per_mac_stats();
+            let _ = writeln!(
+                s,
+                "MACs per frame: base {}, with the frame's adapters min {} max {} ; instructions per MAC (each frame's inference / its MACs): min {lo:.3} median {med:.3} max {hi:.3}",
+                self.macs_per_frame, macs.min, macs.max
+            );
+            let _ = writeln!(
+                s,
+                "per mix: frames, inference instructions per frame (min / median / max), MACs per frame, instructions per MAC (median):"
+            );
+            for g in &self.mix_groups {
+                let weights = if g.weights.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        " (weights {})",
+                        g.weights
+                            .iter()
+                            .map(|w| w.to_string())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    )
+                };
+                let _ = writeln!(
+                    s,
+                    "  {:<14} {:>4} frames  {} / {} / {}  {} MACs  {:.3}{weights}",
+                    g.label,
+                    g.frames,
+                    g.infer.min,
+                    g.infer.median,
+                    g.infer.max,
+                    g.macs,
+                    g.instructions_per_mac()
+                );
+            }
+        }
         let _ = writeln!(
             s,
             "  (SysTick under -icount shift=0: 1 tick = {INSTRUCTIONS_PER_TICK} instructions; calibration loop of {} instructions took {} ticks)",
@@ -389,12 +494,14 @@ pub struct Booted {
     pub log: Vec<String>,
 }
 
-/// Boots the firmware `elf` with `blob` (if any) at MODEL and `image` (if
-/// any) at HOSTIO; decodes the log. Does not judge the exit code.
+/// Boots the firmware `elf` with `blob` (if any) at MODEL, the STYLES image
+/// `styles` (if any) at STYLES and the input image `image` (if any) at
+/// HOSTIO; decodes the log. Does not judge the exit code.
 pub fn boot(
     elf: &ElfInfo,
     elf_path: &Path,
     blob: Option<&Path>,
+    styles: Option<&[u8]>,
     image: Option<&[u8]>,
     timeout: Duration,
 ) -> Result<Booted> {
@@ -418,6 +525,20 @@ pub fn boot(
             addr: elf.model.0,
         });
     }
+    if let Some(img) = styles {
+        let room = elf.styles.1 - elf.styles.0;
+        ensure!(
+            img.len() as u64 <= room,
+            "the style blobs take {} bytes, the STYLES region (memory.x) holds {room} bytes",
+            img.len()
+        );
+        let path = scratch.path().join("styles.bin");
+        std::fs::write(&path, img).context("cannot write the styles image")?;
+        loads.push(qemu::Load {
+            file: path,
+            addr: elf.styles.0,
+        });
+    }
     if let Some(img) = image {
         let room = elf.hostio.1 - elf.hostio.0;
         ensure!(
@@ -437,15 +558,36 @@ pub fn boot(
     Ok(Booted { run, log })
 }
 
-/// Host reference outputs: (i16, f32) per frame, flattened.
-fn host_outputs(model: Model<'_>, frames: &Frames) -> Result<(Vec<i16>, Vec<f32>)> {
+/// Host reference outputs: (i16, f32) per frame, flattened, from the styled
+/// runtime with `styles` added in order and each frame's mix set before it
+/// (what the firmware does).
+pub fn host_outputs(
+    model: Model<'_>,
+    styles: &[StyleFile],
+    frames: &Frames,
+) -> Result<(Vec<i16>, Vec<f32>)> {
     let out_dim = model.output_dim();
-    let mut rt =
-        Box::new(Runtime::<'_, HOST_W>::new(model).context("the host runtime refuses the model")?);
+    let mut rt = Box::new(
+        StyledRuntime::<'_, HOST_W, HOST_S, HOST_N>::new(model)
+            .context("the host runtime refuses the model")?,
+    );
+    for (i, st) in styles.iter().enumerate() {
+        let style = Style::from_bytes(&st.bytes)
+            .with_context(|| format!("style {i} ({})", st.path.display()))?;
+        rt.add_style(style).with_context(|| {
+            format!(
+                "style {i} ({}) is refused by the host runtime",
+                st.path.display()
+            )
+        })?;
+    }
     let mut q_in = vec![0i16; frames.input_dim];
     let mut qs = Vec::with_capacity(frames.len() * out_dim);
     let mut fs = vec![0f32; frames.len() * out_dim];
     for i in 0..frames.len() {
+        let mix = frames.mixes.get(i).copied().unwrap_or(Mix::Base);
+        rt.set_mix(mix)
+            .with_context(|| format!("frame {i}: mix {}", styles::mix_spec_item(mix)))?;
         let phase =
             Phase::from_radians(frames.phases[i]).with_context(|| format!("frame {i}: phase"))?;
         rt.quantise_input(frames.input(i), &mut q_in)
@@ -541,17 +683,28 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         .with_context(|| format!("cannot read the model blob {}", args.model.display()))?;
     let model = Model::from_bytes(&blob)
         .with_context(|| format!("{} is not a valid model blob", args.model.display()))?;
-    let frames = frames::select(
+    let style_files = args
+        .styles
+        .iter()
+        .map(|p| StyleFile::read(p))
+        .collect::<Result<Vec<_>>>()?;
+    let mix = args
+        .mix
+        .clone()
+        .unwrap_or_else(|| MixSpec::default_for(style_files.len()));
+    let mut frames = frames::select(
         args.inputs.as_deref(),
         args.phases.as_deref(),
         args.frames,
         &blob,
         &model,
     )?;
+    frames.mixes = mix.schedule(frames.len());
+    styles::check_schedule(&frames.mixes, style_files.len())?;
     let output_dim = model.output_dim();
     let macs = model.macs_per_frame();
     let model_ram_bytes = model.ram_bytes();
-    let (host_q, host_f) = host_outputs(model, &frames)?;
+    let (host_q, host_f) = host_outputs(model, &style_files, &frames)?;
     let golden_mismatches = frames.expected_q.as_ref().map(|e| {
         e.iter().zip(&host_q).filter(|(a, b)| a != b).count() + e.len().abs_diff(host_q.len())
     });
@@ -566,13 +719,26 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
     let input_crc = wire::InputHeader::parse(&image)
         .map(|(h, _)| h.crc)
         .unwrap_or(0);
+    let styles_image = styles::pack_styles(
+        &style_files
+            .iter()
+            .map(|s| s.bytes.clone())
+            .collect::<Vec<_>>(),
+    );
+    let frame_macs: Vec<u64> = frames
+        .mixes
+        .iter()
+        .map(|&m| styles::frame_macs(u64::from(macs), &style_files, m))
+        .collect();
+    let max_macs = frame_macs.iter().copied().max().unwrap_or(u64::from(macs));
     eprintln!("running {} frames under QEMU ...", frames.len());
     let booted = boot(
         &elf,
         &elf_path,
         Some(&args.model),
+        (!style_files.is_empty()).then_some(&styles_image[..]),
         Some(&image),
-        time_limit(frames.len(), macs),
+        time_limit(frames.len(), u32::try_from(max_macs).unwrap_or(u32::MAX)),
     )?;
     if booted.run.exit_code != wire::exit::OK {
         let mut msg = format!(
@@ -634,6 +800,8 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
             .collect::<Vec<_>>()
     };
     let (flash, ram) = memory_use(&elf, &t);
+    let infer = ticks_to_instr(&out.infer_ticks);
+    let mix_groups = styles::mix_groups(&frames.mixes, &infer, u64::from(macs), &style_files);
     Ok(TargetReport {
         model: args.model.clone(),
         blob_len: blob.len(),
@@ -644,9 +812,14 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         mismatches,
         first_mismatches,
         golden_mismatches,
-        infer_instructions: Stats::of(&ticks_to_instr(&out.infer_ticks)),
+        infer_instructions: Stats::of(&infer),
         frame_instructions: Stats::of(&ticks_to_instr(&out.frame_ticks)),
         macs_per_frame: macs,
+        per_frame: infer.iter().copied().zip(frame_macs).collect(),
+        styles_image: (styles_image.len(), elf.styles.1 - elf.styles.0),
+        styles: style_files,
+        mix,
+        mix_groups,
         model_ram_bytes,
         calibration: (t.calib_ticks, t.calib_instructions),
         flash,

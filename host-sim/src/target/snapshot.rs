@@ -11,7 +11,9 @@ use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 
-use super::{boot, build_firmware, firmware_dir, frames, wire, ElfInfo};
+use super::{
+    boot, build_firmware, firmware_dir, frames, styles, synthetic, wire, ElfInfo, MixSpec,
+};
 
 /// Where the model comes from in a scenario.
 #[derive(Clone, Copy, Debug)]
@@ -24,12 +26,28 @@ enum Blob {
     CorruptPayload,
 }
 
+/// What the STYLES region holds in a scenario.
+#[derive(Clone, Copy, Debug)]
+enum Styles {
+    /// Nothing.
+    None,
+    /// Two styles for the default model ([`synthetic::default_model_styles`]).
+    DefaultPair,
+    /// A style claiming another base ([`OTHER_BASE_CRC`]).
+    OtherBase,
+}
+
+/// The base CRC the `style-other-base` scenario's style claims.
+const OTHER_BASE_CRC: u32 = 0x0BAD_BA5E;
+
 /// One snapshot scenario.
 #[derive(Clone, Copy, Debug)]
 struct Scenario {
     name: &'static str,
     blob: Blob,
-    /// Feed the golden vectors (else no input image).
+    styles: Styles,
+    /// Feed the golden vectors (else no input image), with every frame's
+    /// mix from `cycle` when the scenario has styles (else base).
     golden_inputs: bool,
 }
 
@@ -37,21 +55,37 @@ const SCENARIOS: &[Scenario] = &[
     Scenario {
         name: "golden-default",
         blob: Blob::Default,
+        styles: Styles::None,
         golden_inputs: true,
     },
     Scenario {
         name: "model-only",
         blob: Blob::Default,
+        styles: Styles::None,
         golden_inputs: false,
     },
     Scenario {
         name: "no-model",
         blob: Blob::None,
+        styles: Styles::None,
         golden_inputs: false,
     },
     Scenario {
         name: "corrupt-model",
         blob: Blob::CorruptPayload,
+        styles: Styles::None,
+        golden_inputs: false,
+    },
+    Scenario {
+        name: "golden-styles",
+        blob: Blob::Default,
+        styles: Styles::DefaultPair,
+        golden_inputs: true,
+    },
+    Scenario {
+        name: "style-other-base",
+        blob: Blob::Default,
+        styles: Styles::OtherBase,
         golden_inputs: false,
     },
 ];
@@ -110,9 +144,16 @@ pub fn run_snapshots(overwrite: bool) -> Result<Vec<(&'static str, Outcome)>> {
     let blob = std::fs::read(&blob_path)
         .with_context(|| format!("cannot read {}", blob_path.display()))?;
     let model = phasegate::Model::from_bytes(&blob).context("the default blob")?;
-    let image = frames::golden_for(&blob, model.input_dim(), model.output_dim())?
-        .context("no golden vectors for the default blob")?
-        .image(model.output_dim());
+    let mut golden = frames::golden_for(&blob, model.input_dim(), model.output_dim())?
+        .context("no golden vectors for the default blob")?;
+    let image = golden.image(model.output_dim());
+    golden.mixes = MixSpec::Cycle {
+        step: styles::DEFAULT_CYCLE_STEP,
+    }
+    .schedule(golden.len());
+    let styled_image = golden.image(model.output_dim());
+    let pair = styles::pack_styles(&synthetic::default_model_styles()?);
+    let other = styles::pack_styles(&[synthetic::default_model_style_for_crc(OTHER_BASE_CRC)?]);
     let elf_path = build_firmware()?;
     let elf = ElfInfo::read(&elf_path)?;
     let scratch = tempfile::tempdir()?;
@@ -130,9 +171,21 @@ pub fn run_snapshots(overwrite: bool) -> Result<Vec<(&'static str, Outcome)>> {
             Blob::Default => Some(&blob_path),
             Blob::CorruptPayload => Some(&corrupt_path),
         };
-        let img = s.golden_inputs.then_some(&image[..]);
-        let booted = boot(&elf, &elf_path, blob, img, Duration::from_secs(120))
-            .with_context(|| format!("scenario {}", s.name))?;
+        let (style_image, input_image) = match s.styles {
+            Styles::None => (None, &image),
+            Styles::DefaultPair => (Some(&pair[..]), &styled_image),
+            Styles::OtherBase => (Some(&other[..]), &image),
+        };
+        let img = s.golden_inputs.then_some(&input_image[..]);
+        let booted = boot(
+            &elf,
+            &elf_path,
+            blob,
+            style_image,
+            img,
+            Duration::from_secs(120),
+        )
+        .with_context(|| format!("scenario {}", s.name))?;
         let actual = render(booted.run.exit_code, &booted.log);
         let path = snapshot_dir().join(format!("{}.log", s.name));
         let outcome = match std::fs::read_to_string(&path) {

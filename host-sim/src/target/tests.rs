@@ -1,9 +1,13 @@
-//! Tests of `host-sim target`: the wire format (always), and under QEMU
-//! (skipped with a message when `qemu-system-arm` or the golden vectors are
-//! missing): bit-exactness on the golden vectors, issue 4's memory budgets,
-//! the two must-fail cases (a model too wide for the firmware's buffers is
-//! refused at load; buffers too big for RAM fail to link), bad blobs, and
-//! the defmt log snapshots.
+//! Tests of `host-sim target`: the wire format, the STYLES image and the mix
+//! schedules (always), and under QEMU (skipped with a message when
+//! `qemu-system-arm` or the golden vectors are missing): bit-exactness on
+//! the golden vectors, on a whole-network CP model and on a base with two
+//! styles switched and blended between frames; issue 4's memory budgets;
+//! the must-fail cases (a model too wide for the firmware's buffers is
+//! refused at load; buffers too big for RAM fail to link; bad blobs; a style
+//! for another base or a damaged style is refused at boot; an unknown style
+//! or a malformed mix stops the run at that frame); and the defmt log
+//! snapshots.
 
 /// Straight to stderr: the harness swallows println! of passing tests, and a
 /// skip must be visible.
@@ -16,6 +20,9 @@ macro_rules! eprintln_direct {
 
 use std::path::PathBuf;
 use std::time::Duration;
+
+use phasegate::style::BlendWeight;
+use phasegate::StyleId;
 
 use super::*;
 
@@ -53,17 +60,35 @@ fn crc32_is_the_zlib_one() {
 
 #[test]
 fn input_image_round_trips_and_rejects_damage() {
-    let f = frames::generated(3, &[(0.0, 1.0), (1.0, 2.0)], 7);
+    let mut f = frames::generated(3, &[(0.0, 1.0), (1.0, 2.0)], 7);
+    f.mixes = vec![
+        Mix::Base,
+        Mix::One(StyleId(2)),
+        Mix::Blend {
+            from: StyleId(1),
+            to: StyleId(0),
+            weight: BlendWeight::from_bits(0x2000),
+        },
+    ];
     let image = f.image(5);
     let (h, records) = wire::InputHeader::parse(&image).unwrap();
     assert_eq!((h.frames, h.input_dim, h.output_dim), (3, 2, 5));
+    assert_eq!(h.record_len(), 8 + 4 + 4 * 2);
     assert_eq!(records.len(), 3 * h.record_len());
+    // The version and the record length are where the doc table says.
+    assert_eq!(&image[4..6], &2u16.to_le_bytes());
+    assert_eq!(&image[20..24], &20u32.to_le_bytes());
     let mut x = [0f32; 2];
     for (i, r) in records.chunks_exact(h.record_len()).enumerate() {
-        let p = wire::read_record(r, &mut x).unwrap();
-        assert_eq!(p.to_bits(), f.phases[i].to_bits());
+        let rec = wire::read_record(r, &mut x).unwrap();
+        assert_eq!(rec.phase.to_bits(), f.phases[i].to_bits());
+        assert_eq!(wire::decode_mix(&rec.mix), Ok(f.mixes[i]));
         assert_eq!(x, f.input(i));
     }
+    // The mix field starts the record, byte for byte as documented.
+    assert_eq!(&records[20..28], &[1, 2, 0, 0, 0, 0, 0, 0]);
+    assert_eq!(&records[40..48], &[2, 1, 0, 0, 0x00, 0x20, 0, 0]);
+    assert!(wire::read_record(&records[..19], &mut x).is_none());
     // Longer region (the rest of PSRAM) is fine.
     let mut region = image.clone();
     region.resize(image.len() + 100, 0);
@@ -89,12 +114,151 @@ fn input_image_round_trips_and_rejects_damage() {
         wire::InputHeader::parse(&bad),
         Err(wire::WireError::UnsupportedVersion(9))
     );
+    // A version-1 image (records without a mix field) is refused.
+    let mut bad = image.clone();
+    bad[4] = 1;
+    assert_eq!(
+        wire::InputHeader::parse(&bad),
+        Err(wire::WireError::UnsupportedVersion(1))
+    );
     let mut bad = image;
     bad[20] ^= 4;
     assert_eq!(
         wire::InputHeader::parse(&bad),
         Err(wire::WireError::BadHeader)
     );
+}
+
+#[test]
+fn mix_fields_round_trip_and_malformed_ones_are_refused() {
+    let w = |bits| BlendWeight::from_bits(bits);
+    for mix in [
+        Mix::Base,
+        Mix::One(StyleId(0)),
+        Mix::One(StyleId(255)),
+        Mix::Blend {
+            from: StyleId(0),
+            to: StyleId(1),
+            weight: w(0),
+        },
+        Mix::Blend {
+            from: StyleId(3),
+            to: StyleId(3),
+            weight: w(0x8000),
+        },
+    ] {
+        assert_eq!(wire::decode_mix(&wire::encode_mix(mix)), Ok(mix), "{mix:?}");
+    }
+    assert_eq!(
+        wire::decode_mix(&[3, 0, 0, 0, 0, 0, 0, 0]),
+        Err(wire::WireError::UnknownMixKind(3))
+    );
+    // Bytes the kind does not use must be 0.
+    for (field, offset) in [
+        ([0u8, 1, 0, 0, 0, 0, 0, 0], 1),
+        ([1, 0, 1, 0, 0, 0, 0, 0], 2),
+        ([1, 0, 0, 0, 1, 0, 0, 0], 4),
+        ([2, 0, 1, 1, 0, 0, 0, 0], 3),
+        ([2, 0, 1, 0, 0, 0, 0, 9], 7),
+    ] {
+        assert_eq!(
+            wire::decode_mix(&field),
+            Err(wire::WireError::BadMixField { offset }),
+            "{field:?}"
+        );
+    }
+    // Weights above 1.0 are refused, 1.0 itself is fine.
+    assert!(wire::decode_mix(&[2, 0, 1, 0, 0x00, 0x80, 0, 0]).is_ok());
+    assert_eq!(
+        wire::decode_mix(&[2, 0, 1, 0, 0x01, 0x80, 0, 0]),
+        Err(wire::WireError::BadMixField { offset: 4 })
+    );
+    assert_eq!(
+        wire::decode_mix(&wire::encode_mix(Mix::Blend {
+            from: StyleId(0),
+            to: StyleId(1),
+            weight: w(0xFFFF),
+        })),
+        Err(wire::WireError::BadMixField { offset: 4 })
+    );
+}
+
+#[test]
+fn styles_are_packed_at_16_byte_offsets() {
+    let blobs = vec![vec![1u8; 5], vec![2u8; 16], vec![3u8; 1]];
+    let image = styles::pack_styles(&blobs);
+    assert_eq!(image.len(), 32 + 1);
+    assert_eq!(&image[..5], &[1; 5]);
+    assert_eq!(&image[5..16], &[0; 11]);
+    assert_eq!(&image[16..32], &[2; 16]);
+    assert_eq!(image[32], 3);
+    assert!(styles::pack_styles(&[]).is_empty());
+}
+
+#[test]
+fn mix_specs_parse_and_schedule() {
+    let sched = |spec: &str, n| spec.parse::<MixSpec>().unwrap().schedule(n);
+    let blend = |a, b, bits| Mix::Blend {
+        from: StyleId(a),
+        to: StyleId(b),
+        weight: BlendWeight::from_bits(bits),
+    };
+    assert_eq!(sched("base", 3), vec![Mix::Base; 3]);
+    assert_eq!(sched("1", 2), vec![Mix::One(StyleId(1)); 2]);
+    assert_eq!(sched("blend:0:1:0.3", 1), vec![blend(0, 1, 9830)]);
+    assert_eq!(
+        sched("base*2,0,blend:1:0:1", 6),
+        vec![
+            Mix::Base,
+            Mix::Base,
+            Mix::One(StyleId(0)),
+            blend(1, 0, 0x8000),
+            Mix::Base,
+            Mix::Base
+        ]
+    );
+    let c = sched("cycle", 18);
+    assert_eq!(&c[..2], &[Mix::Base; 2]);
+    assert_eq!(&c[2..4], &[Mix::One(StyleId(0)); 2]);
+    assert_eq!(&c[4..6], &[Mix::One(StyleId(1)); 2]);
+    let weights: Vec<u16> = c[6..16]
+        .iter()
+        .step_by(2)
+        .map(|m| match m {
+            Mix::Blend { from, to, weight } => {
+                assert_eq!((from.0, to.0), (0, 1));
+                weight.to_bits()
+            }
+            other => panic!("{other:?}"),
+        })
+        .collect();
+    assert_eq!(weights, [0, 0x2000, 0x4000, 0x6000, 0x8000]);
+    assert_eq!(&c[16..18], &[Mix::Base; 2]);
+    assert_eq!(sched("cycle:1", 8)[7], blend(0, 1, 0x8000));
+    for bad in [
+        "",
+        "blend:0:1",
+        "blend:0:1:1.5",
+        "blend:0:1:-0.1",
+        "256",
+        "x",
+        "base*0",
+        "cycle:0",
+        "cycles",
+    ] {
+        assert!(bad.parse::<MixSpec>().is_err(), "{bad:?} parsed");
+    }
+    for spec in ["base", "cycle:3", "base*2,0,blend:0:1:0.5"] {
+        assert_eq!(spec.parse::<MixSpec>().unwrap().to_string(), spec);
+    }
+    assert!(styles::check_schedule(&sched("cycle", 16), 2).is_ok());
+    let e = styles::check_schedule(&sched("cycle", 16), 1).unwrap_err();
+    assert!(e.to_string().contains("uses style 1"), "{e}");
+    assert_eq!(MixSpec::default_for(0).schedule(2), vec![Mix::Base; 2]);
+    assert!(matches!(
+        MixSpec::default_for(2),
+        MixSpec::Cycle { step: 2 }
+    ));
 }
 
 #[test]
@@ -164,6 +328,11 @@ fn budgets_bite() {
         infer_instructions: Stats::default(),
         frame_instructions: Stats::default(),
         macs_per_frame: 1,
+        per_frame: vec![],
+        styles: vec![],
+        styles_image: (0, 0),
+        mix: MixSpec::default(),
+        mix_groups: vec![],
         model_ram_bytes: 0,
         calibration: (1000, 40000),
         flash: FlashUse {
@@ -374,7 +543,15 @@ fn bad_blobs_are_refused_with_their_error() {
     for (name, bytes, expected) in cases {
         let path = dir.path().join("bad.blob");
         std::fs::write(&path, &bytes).unwrap();
-        let booted = boot(&elf, &elf_path, Some(&path), None, Duration::from_secs(60)).unwrap();
+        let booted = boot(
+            &elf,
+            &elf_path,
+            Some(&path),
+            None,
+            None,
+            Duration::from_secs(60),
+        )
+        .unwrap();
         assert_eq!(
             booted.run.exit_code,
             wire::exit::BAD_MODEL,
@@ -454,10 +631,372 @@ fn real_pfnn_int8_cubic_is_bit_exact_on_the_target() {
         frames: None,
         inputs: Some(xp),
         phases: Some(pp),
+        ..TargetArgs::default()
     })
     .unwrap();
     assert!(report.bit_exact());
     assert_eq!(report.frames, n);
     assert!(report.blob_len > 2_000_000, "{} bytes", report.blob_len);
     report.check_budgets().unwrap();
+}
+
+// ---- CP layers and styles ----
+
+/// A small base (24 -> 20 -> 20 -> 10, cubic) with its blob and float twin.
+fn styled_base(seed: u64) -> (Vec<u8>, exporter::cp::float::FloatNet) {
+    let pfnn = synthetic::pfnn_base(seed, 24, 20, 10);
+    let (blob, _) =
+        exporter::export::export_pfnn(&pfnn, None, &exporter::quantise::QuantOptions::default())
+            .unwrap();
+    (blob, exporter::cp::float::FloatNet::from_pfnn(&pfnn))
+}
+
+/// The base of [`styled_base`] with a CP (rank 6) and a diagonal style.
+fn base_and_two_styles(dir: &std::path::Path) -> (PathBuf, Vec<PathBuf>) {
+    let (blob, net) = styled_base(41);
+    let base = dir.join("base.blob");
+    std::fs::write(&base, &blob).unwrap();
+    let mut paths = Vec::new();
+    for (form, name, seed) in [("cp", "cp-style", 42), ("diagonal", "diag-style", 43)] {
+        let s = synthetic::style_blob(
+            &blob,
+            &net,
+            &synthetic::adapter(form, 20, 6, seed),
+            name,
+            None,
+        )
+        .unwrap();
+        let p = dir.join(format!("{name}.style"));
+        std::fs::write(&p, s).unwrap();
+        paths.push(p);
+    }
+    (base, paths)
+}
+
+/// The styled runtime's `dequantise_output` (what the firmware and the host
+/// reference use) equals its own `run` bit for bit, with a style active.
+#[test]
+fn styled_dequantise_output_equals_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let (base, styles) = base_and_two_styles(dir.path());
+    let blob = std::fs::read(&base).unwrap();
+    let style = std::fs::read(&styles[0]).unwrap();
+    let model = Model::from_bytes(&blob).unwrap();
+    let stage: Vec<(f32, f32)> = model.input_stage().collect();
+    let f = frames::generated(4, &stage, 9);
+    let mut rt: Box<StyledRuntime<'_, 64, 256, 2>> = Box::new(StyledRuntime::new(model).unwrap());
+    rt.add_style(Style::from_bytes(&style).unwrap()).unwrap();
+    rt.set_mix(Mix::One(StyleId(0))).unwrap();
+    let mut q_in = vec![0i16; f.input_dim];
+    for i in 0..f.len() {
+        let phase = Phase::from_radians(f.phases[i]).unwrap();
+        let (mut a, mut b) = (vec![0f32; 10], vec![0f32; 10]);
+        rt.run(phase, f.input(i), &mut a).unwrap();
+        rt.quantise_input(f.input(i), &mut q_in).unwrap();
+        let q = rt.run_quantised(phase, &q_in).unwrap().to_vec();
+        rt.dequantise_output(&q, &mut b).unwrap();
+        assert_eq!(
+            a.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            b.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        );
+    }
+    assert!(rt.dequantise_output(&[0; 9], &mut [0.0; 10]).is_err());
+}
+
+/// Issue 5: a model whose every layer is CP or diagonal runs bit-exact on
+/// the target.
+#[test]
+fn whole_cp_model_is_bit_exact_on_the_target() {
+    let name = "whole_cp_model_is_bit_exact_on_the_target";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    let net = synthetic::cp_net(51, 40, 48, 12, 16);
+    let (blob, _) =
+        exporter::cp::export_net(&net, &exporter::quantise::QuantOptions::default()).unwrap();
+    let model = Model::from_bytes(&blob).unwrap();
+    let ops: Vec<_> = model.header().layers.iter().map(|l| l.op).collect();
+    assert!(
+        matches!(
+            ops[..],
+            [
+                phasegate::blob::LayerOp::Cp { rank: 16, .. },
+                phasegate::blob::LayerOp::Diagonal,
+                phasegate::blob::LayerOp::Cp { rank: 8, .. }
+            ]
+        ),
+        "{ops:?}"
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cp.blob");
+    std::fs::write(&path, &blob).unwrap();
+    let report = execute(&TargetArgs {
+        model: path,
+        frames: Some(8),
+        ..TargetArgs::default()
+    })
+    .unwrap();
+    println!("{}", report.render());
+    assert!(report.bit_exact(), "{}", report.render());
+    assert_eq!(report.frames, 8);
+    assert_eq!(
+        u64::from(report.macs_per_frame),
+        16 * (40 + 48 + 4) + 4 * 48 + 8 * (48 + 12 + 4)
+    );
+    assert!(report.infer_instructions.min > 0);
+    report.check_budgets().unwrap();
+}
+
+/// Issue 5: a base and two styles (CP and diagonal adapters beside layer 1)
+/// run bit-exact on the target while the mix switches every frame between
+/// base, each style, and blends at weights 0, 0.25, 0.5, 0.75 and 1; the
+/// styled frames really differ from the base.
+#[test]
+fn styles_switched_and_blended_are_bit_exact_on_the_target() {
+    let name = "styles_switched_and_blended_are_bit_exact_on_the_target";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (base, styles) = base_and_two_styles(dir.path());
+    let args = TargetArgs {
+        model: base.clone(),
+        frames: Some(16),
+        styles: styles.clone(),
+        mix: Some("cycle:1".parse().unwrap()),
+        ..TargetArgs::default()
+    };
+    let report = execute(&args).unwrap();
+    println!("{}", report.render());
+    assert!(report.bit_exact(), "{}", report.render());
+    assert_eq!(report.frames, 16);
+    let log = report.log.join("\n");
+    assert!(
+        log.contains("\"cp-style\"") && log.contains("CP adapter 20 -> 20, rank 6"),
+        "{log}"
+    );
+    assert!(
+        log.contains("\"diag-style\"") && log.contains("diagonal adapter 20 -> 20"),
+        "{log}"
+    );
+    assert!(log.contains("2 styles in the STYLES region"), "{log}");
+    let labels: Vec<&str> = report.mix_groups.iter().map(|g| g.label.as_str()).collect();
+    assert_eq!(labels, ["base", "style 0", "style 1", "blend 0 -> 1"]);
+    let blend = &report.mix_groups[3];
+    assert_eq!(blend.weights, [0.0, 0.25, 0.5, 0.75, 1.0]);
+    assert_eq!(blend.frames, 10);
+    // MACs: the base's plus each adapter the mix runs (both for a blend).
+    let (s0, s1) = (report.styles[0].macs, report.styles[1].macs);
+    let base_macs = u64::from(report.macs_per_frame);
+    assert_eq!(report.mix_groups[0].macs, base_macs);
+    assert_eq!(report.mix_groups[1].macs, base_macs + s0);
+    assert_eq!(report.mix_groups[2].macs, base_macs + s1);
+    assert_eq!(blend.macs, base_macs + s0 + s1);
+    // Adapters cost instructions: a blend runs both.
+    assert!(blend.infer.min > report.mix_groups[0].infer.max);
+    report.check_budgets().unwrap();
+
+    // The mixes changed the outputs (so bit-exactness covers the adapters):
+    // the same frames with the base alone differ in every styled frame.
+    let blob = std::fs::read(&base).unwrap();
+    let model = Model::from_bytes(&blob).unwrap();
+    let style_files: Vec<StyleFile> = styles.iter().map(|p| StyleFile::read(p).unwrap()).collect();
+    let mut f = frames::select(None, None, Some(16), &blob, &model).unwrap();
+    f.mixes = "cycle:1".parse::<MixSpec>().unwrap().schedule(16);
+    let (styled, _) = host_outputs(model.clone(), &style_files, &f).unwrap();
+    let mixes = std::mem::replace(&mut f.mixes, vec![Mix::Base; 16]);
+    let (plain, _) = host_outputs(model, &style_files, &f).unwrap();
+    let out = 10;
+    for (i, mix) in mixes.iter().enumerate() {
+        let differs = styled[i * out..(i + 1) * out] != plain[i * out..(i + 1) * out];
+        assert_eq!(differs, *mix != Mix::Base, "frame {i} ({mix:?})");
+    }
+}
+
+/// Issue 5: a style built for another base is refused at boot with
+/// BAD_STYLE and a log naming both CRCs; so are a damaged style and a model
+/// blob in the STYLES region. Never a panic.
+#[test]
+fn styles_for_another_base_or_damaged_are_refused_at_boot() {
+    let name = "styles_for_another_base_or_damaged_are_refused_at_boot";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    let elf_path = build_firmware().unwrap();
+    let elf = ElfInfo::read(&elf_path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (base_blob, base_net) = styled_base(41);
+    let (other_blob, other_net) = styled_base(99);
+    let base_crc = Model::from_bytes(&base_blob).unwrap().header().payload_crc;
+    let other_crc = Model::from_bytes(&other_blob).unwrap().header().payload_crc;
+    assert_ne!(base_crc, other_crc);
+    let good = synthetic::style_blob(
+        &base_blob,
+        &base_net,
+        &synthetic::adapter("cp", 20, 6, 42),
+        "good",
+        None,
+    )
+    .unwrap();
+    let foreign = synthetic::style_blob(
+        &other_blob,
+        &other_net,
+        &synthetic::adapter("cp", 20, 6, 42),
+        "foreign",
+        None,
+    )
+    .unwrap();
+    let mut damaged = good.clone();
+    *damaged.last_mut().unwrap() ^= 0x40;
+    let base = dir.path().join("base.blob");
+    std::fs::write(&base, &base_blob).unwrap();
+    // (case, style blobs in the region, what the refusal line must name)
+    type Case = (&'static str, Vec<Vec<u8>>, Vec<String>);
+    let cases: Vec<Case> = vec![
+        (
+            "style for another base, second in the region",
+            vec![good.clone(), foreign],
+            vec![
+                "style 1 at 0x".into(),
+                "StyleMismatch".into(),
+                format!("{base_crc:#010x}"),
+                format!("{other_crc:#010x}"),
+            ],
+        ),
+        (
+            "damaged style",
+            vec![damaged],
+            vec!["style 0 at 0x".into(), "PayloadCorrupt".into()],
+        ),
+        (
+            "a model in the STYLES region",
+            vec![other_blob.clone()],
+            vec!["NotAStyle".into()],
+        ),
+    ];
+    for (case, blobs, expected) in cases {
+        let image = styles::pack_styles(&blobs);
+        let booted = boot(
+            &elf,
+            &elf_path,
+            Some(&base),
+            Some(&image),
+            None,
+            Duration::from_secs(60),
+        )
+        .unwrap();
+        assert_eq!(
+            booted.run.exit_code,
+            wire::exit::BAD_STYLE,
+            "{case}: {:?}",
+            booted.log
+        );
+        let last = booted.log.last().cloned().unwrap_or_default();
+        assert!(last.starts_with("ERROR"), "{case}: {last}");
+        for e in &expected {
+            assert!(last.contains(e.as_str()), "{case}: {e:?} not in {last}");
+        }
+    }
+    // The host refuses the foreign style too, before running anything.
+    let foreign_path = dir.path().join("foreign.style");
+    std::fs::write(
+        &foreign_path,
+        synthetic::style_blob(
+            &other_blob,
+            &other_net,
+            &synthetic::adapter("cp", 20, 6, 42),
+            "foreign",
+            None,
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    let err = execute(&TargetArgs {
+        model: base,
+        frames: Some(2),
+        styles: vec![foreign_path],
+        ..TargetArgs::default()
+    })
+    .unwrap_err();
+    assert!(
+        format!("{err:#}").contains("refused by the host runtime"),
+        "{err:#}"
+    );
+}
+
+/// Issue 5: a frame whose mix names a style that was not loaded, or whose
+/// mix field is malformed, stops the run at that frame with FRAME_ERROR
+/// (the frames before it are written).
+#[test]
+fn unknown_style_or_malformed_mix_is_a_frame_error() {
+    let name = "unknown_style_or_malformed_mix_is_a_frame_error";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    let elf_path = build_firmware().unwrap();
+    let elf = ElfInfo::read(&elf_path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (base, styles) = base_and_two_styles(dir.path());
+    let blob = std::fs::read(&base).unwrap();
+    let model = Model::from_bytes(&blob).unwrap();
+    let image = styles::pack_styles(&[std::fs::read(&styles[0]).unwrap()]);
+    let f = frames::select(None, None, Some(3), &blob, &model).unwrap();
+    let ok0 = wire::encode_mix(Mix::Base);
+    let ok1 = wire::encode_mix(Mix::One(StyleId(0)));
+    let cases: [(&str, [u8; wire::MIX_LEN], &str); 4] = [
+        (
+            "style 1 not loaded",
+            wire::encode_mix(Mix::One(StyleId(1))),
+            "UnknownStyle { index: 1 }",
+        ),
+        (
+            "blend to an unknown style",
+            wire::encode_mix(Mix::Blend {
+                from: StyleId(0),
+                to: StyleId(7),
+                weight: BlendWeight::from_bits(0x4000),
+            }),
+            "UnknownStyle { index: 7 }",
+        ),
+        (
+            "unknown kind",
+            [9, 0, 0, 0, 0, 0, 0, 0],
+            "UnknownMixKind(9)",
+        ),
+        (
+            "weight above 1",
+            [2, 0, 0, 0, 0x01, 0x80, 0, 0],
+            "BadMixField { offset: 4 }",
+        ),
+    ];
+    for (case, bad, expected) in cases {
+        let input = f.image_with_mix_fields(model.output_dim(), &[ok0, ok1, bad]);
+        let booted = boot(
+            &elf,
+            &elf_path,
+            Some(&base),
+            Some(&image),
+            Some(&input),
+            Duration::from_secs(60),
+        )
+        .unwrap();
+        assert_eq!(
+            booted.run.exit_code,
+            wire::exit::FRAME_ERROR,
+            "{case}: {:?}",
+            booted.log
+        );
+        let last = booted.log.last().cloned().unwrap_or_default();
+        assert!(
+            last.starts_with("ERROR frame 2: mix") && last.contains(expected),
+            "{case}: {last}"
+        );
+        // Frames 0 and 1 ran and were written before the refusal.
+        let file = booted.run.output_file.unwrap_or_default();
+        assert_eq!(
+            file.len(),
+            wire::HEADER_LEN + 2 * (8 + 6 * model.output_dim()),
+            "{case}"
+        );
+    }
 }

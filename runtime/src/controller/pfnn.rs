@@ -8,6 +8,7 @@ use crate::error::{Error, Result};
 use crate::fixed::phase::Phase;
 use crate::model::Model;
 use crate::runtime::Runtime;
+use crate::style::StyledRuntime;
 
 /// A PFNN locomotion controller: a validated PFNN blob, its activation
 /// buffers (`W` elements each, at least the widest layer: 512 for the
@@ -97,23 +98,41 @@ impl<const W: usize> Network<f32> for Runtime<'_, W> {
         self.run(phase_from_cycles(phase), x, y)
     }
 
-    /// The output stage's offsets: the exporter stores `Ymean` there (a
-    /// zero network output de-quantises to it).
     fn mean_output(&self, y: &mut [f32; OUTPUTS]) -> Result<()> {
-        let stage = self.model().output_stage();
-        let mut n = 0;
-        for (o, (_, offset)) in y.iter_mut().zip(stage) {
-            *o = offset;
-            n += 1;
-        }
-        if n == OUTPUTS {
-            Ok(())
-        } else {
-            Err(Error::NotPfnn {
-                inputs: self.model().input_dim() as u32,
-                outputs: n as u32,
-            })
-        }
+        mean_output_of(self.model(), y)
+    }
+}
+
+/// A styled runtime drives the same loop: set its mix between two
+/// [`Locomotion::step`]s to switch or blend styles. The loop's state (the
+/// phase included) is the caller's and no style touches it.
+impl<const W: usize, const S: usize, const N: usize> Network<f32> for StyledRuntime<'_, W, S, N> {
+    fn predict(&mut self, phase: f32, x: &[f32; INPUTS], y: &mut [f32; OUTPUTS]) -> Result<()> {
+        self.run(phase_from_cycles(phase), x, y)
+    }
+
+    /// The base's mean output: the loop starts from the same pose whatever
+    /// the style.
+    fn mean_output(&self, y: &mut [f32; OUTPUTS]) -> Result<()> {
+        mean_output_of(self.model(), y)
+    }
+}
+
+/// The output stage's offsets: the exporter stores `Ymean` there (a zero
+/// network output de-quantises to it).
+fn mean_output_of(model: &Model<'_>, y: &mut [f32; OUTPUTS]) -> Result<()> {
+    let mut n = 0;
+    for (o, (_, offset)) in y.iter_mut().zip(model.output_stage()) {
+        *o = offset;
+        n += 1;
+    }
+    if n == OUTPUTS {
+        Ok(())
+    } else {
+        Err(Error::NotPfnn {
+            inputs: model.input_dim() as u32,
+            outputs: n as u32,
+        })
     }
 }
 

@@ -208,6 +208,18 @@ impl<'a, const W: usize, const S: usize, const N: usize> StyledRuntime<'a, W, S,
         quantise_into(&self.model, input, out).map(|_| ())
     }
 
+    /// De-quantises the i16 outputs of [`StyledRuntime::run_quantised`]:
+    /// `y = q * scale + offset` in IEEE f32, as `run` and
+    /// `Runtime::dequantise_output` compute it.
+    pub fn dequantise_output(&self, q: &[i16], out: &mut [f32]) -> Result<()> {
+        check_len(self.model.output_dim(), q.len())?;
+        check_len(self.model.output_dim(), out.len())?;
+        for ((o, &v), (scale, offset)) in out.iter_mut().zip(q).zip(self.model.output_stage()) {
+            *o = f32::from(v) * scale + offset;
+        }
+        Ok(())
+    }
+
     fn forward(&mut self, phase: Phase) -> Result<&[i16]> {
         let gate = self.model.gate(phase);
         let weights = self.mix.weights();

@@ -1,0 +1,180 @@
+//! `host-sim rollout-dataset`: the network inputs the float controller
+//! feeds a dense PFNN over command scripts, as a data set for
+//! `exporter cp --distill-data`.
+//!
+//! The f64 float controller ([`reference_f64`], the same loop as the
+//! device's) runs each script for `--frames` frames from the reset pose;
+//! every frame's network input and phase is one row. The `.npz` (float32,
+//! C order; names in [`exporter::cp::distill`]):
+//!
+//! | array | shape | meaning |
+//! |---|---|---|
+//! | `X` | (N, inputs) | network inputs, model units (not normalised) |
+//! | `phase` | (N,) | phase of each row, radians in `[0, 2 pi)` |
+//! | `script` | (N,) | index of the row's script in `--scripts` |
+//! | `frame` | (N,) | frame of the row within its script |
+//!
+//! Rows are in script order, then frame order. The output depends only on
+//! the model and the arguments (same bytes on every run).
+
+use anyhow::{bail, Context, Result};
+use exporter::cp::distill::{DATA_INPUTS, DATA_PHASES};
+use exporter::float_pfnn::{FloatPfnn, GatingMode};
+use std::f64::consts::TAU;
+use std::path::PathBuf;
+
+use super::{load_reference, Script};
+use crate::controller::{reference_f64, Controller};
+
+/// The scripts `--scripts` defaults to.
+pub const DEFAULT_SCRIPTS: &str = "walk,circle-left,zigzag,jog-stop-jog,crouch-walk";
+
+/// `host-sim rollout-dataset`.
+#[derive(Debug, clap::Args)]
+pub struct RolloutDatasetArgs {
+    /// The dense float model: a PFNN weight directory or a PFNN-shaped .npz.
+    #[arg(long)]
+    pub pfnn: PathBuf,
+    /// Gating of the float model: constant, linear or cubic.
+    #[arg(long, default_value = "cubic")]
+    pub gating: GatingMode,
+    /// Scripts, comma separated: built-in names (idle, walk, circle-left,
+    /// zigzag, jog-stop-jog, crouch-walk) or JSON script files.
+    #[arg(long, value_delimiter = ',', default_value = DEFAULT_SCRIPTS)]
+    pub scripts: Vec<String>,
+    /// Frames of each script (60 per second).
+    #[arg(long, default_value_t = 600)]
+    pub frames: usize,
+    /// Where to write the data set (.npz).
+    #[arg(short = 'o', long = "out")]
+    pub out: PathBuf,
+}
+
+/// Network inputs and phases of the float controller's rollouts.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RolloutDataset {
+    /// Inputs, model units, one row per frame.
+    pub inputs: Vec<Vec<f64>>,
+    /// Phases, radians.
+    pub phases: Vec<f64>,
+    /// Script index of each row.
+    pub script: Vec<usize>,
+    /// Frame of each row within its script.
+    pub frame: Vec<usize>,
+}
+
+impl RolloutDataset {
+    /// Rows.
+    pub fn len(&self) -> usize {
+        self.inputs.len()
+    }
+
+    /// No rows.
+    pub fn is_empty(&self) -> bool {
+        self.inputs.is_empty()
+    }
+
+    /// The arrays of the `.npz`, float32.
+    pub fn arrays(&self) -> Vec<(&'static str, Vec<u64>, Vec<f32>)> {
+        let n = self.len() as u64;
+        let width = self.inputs.first().map_or(0, Vec::len) as u64;
+        let f = |v: &[usize]| v.iter().map(|&i| i as f32).collect::<Vec<f32>>();
+        vec![
+            (
+                DATA_INPUTS,
+                vec![n, width],
+                self.inputs.iter().flatten().map(|&v| v as f32).collect(),
+            ),
+            (
+                DATA_PHASES,
+                vec![n],
+                self.phases.iter().map(|&p| p as f32).collect(),
+            ),
+            ("script", vec![n], f(&self.script)),
+            ("frame", vec![n], f(&self.frame)),
+        ]
+    }
+}
+
+/// Runs the f64 float controller over `net` for `frames` frames of each
+/// script, recording every network input and phase.
+pub fn collect(net: &FloatPfnn, scripts: &[Script], frames: usize) -> Result<RolloutDataset> {
+    let mut d = RolloutDataset::default();
+    for (si, script) in scripts.iter().enumerate() {
+        let mut ctl = reference_f64(net)?;
+        for f in 0..frames {
+            let pose = ctl
+                .step(&script.command(f))
+                .with_context(|| format!("script {}: frame {f}", script.name))?;
+            let x = ctl.state().last_input();
+            if let Some(i) = x.iter().position(|&v| !(v as f32).is_finite()) {
+                bail!(
+                    "script {}: frame {f}: network input {i} is {} (beyond float32): \
+                     the float controller diverged",
+                    script.name,
+                    x[i]
+                );
+            }
+            d.inputs.push(x.to_vec());
+            d.phases.push(pose.phase * TAU);
+            d.script.push(si);
+            d.frame.push(f);
+        }
+    }
+    Ok(d)
+}
+
+/// `host-sim rollout-dataset`: runs, writes the `.npz`, prints a summary.
+pub fn rollout_dataset_cmd(args: &RolloutDatasetArgs) -> Result<()> {
+    if args.frames == 0 {
+        bail!("--frames must be at least 1");
+    }
+    if args.scripts.is_empty() {
+        bail!("--scripts names no script");
+    }
+    let scripts = args
+        .scripts
+        .iter()
+        .map(|s| Script::load(s))
+        .collect::<Result<Vec<_>>>()?;
+    let net = load_reference(&args.pfnn, args.gating)?;
+    if net.input_dim() != phasegate::controller::layout::INPUTS
+        || net.output_dim() != phasegate::controller::layout::OUTPUTS
+    {
+        bail!(
+            "{}: the controller needs a PFNN-shaped model ({} inputs, {} outputs), this one has {} and {}",
+            args.pfnn.display(),
+            phasegate::controller::layout::INPUTS,
+            phasegate::controller::layout::OUTPUTS,
+            net.input_dim(),
+            net.output_dim()
+        );
+    }
+    let d = collect(&net, &scripts, args.frames)?;
+    exporter::npz::write_npz(&args.out, &d.arrays())?;
+    println!(
+        "wrote {}: {} rows ({} scripts x {} frames), arrays X ({}, {}), phase, script, frame",
+        args.out.display(),
+        d.len(),
+        scripts.len(),
+        args.frames,
+        d.len(),
+        net.input_dim()
+    );
+    for (i, s) in scripts.iter().enumerate() {
+        println!("  script {i}: {}", s.name);
+    }
+    // How far the controller's inputs are from the normal samples
+    // (Xmean + Xstd N(0,1)): RMS of the normalised inputs, 1 for those.
+    let mut sq = 0.0;
+    for x in &d.inputs {
+        for ((v, m), s) in x.iter().zip(&net.xmean).zip(&net.xstd) {
+            sq += ((v - m) / s).powi(2);
+        }
+    }
+    println!(
+        "RMS of the normalised inputs: {:.3} (normal samples: 1)",
+        (sq / (d.len() * net.input_dim()).max(1) as f64).sqrt()
+    );
+    Ok(())
+}

@@ -1,0 +1,166 @@
+//! Small synthetic models and style blobs for the target's tests and log
+//! snapshots, built with the exporter (nothing from the shared PFNN): a
+//! whole-network CP model, a small PFNN-shaped base, and residual adapters
+//! (CP, diagonal, full) for it or for the embedded default model.
+
+use anyhow::{anyhow, Result};
+use exporter::cp::encode::{encode_net, QKind};
+use exporter::cp::float::{Adapter, CpLayer, DiagLayer, FloatNet, NetLayer};
+use exporter::float_pfnn::{ExpertLayer, FloatPfnn, GatingMode};
+use exporter::quantise::QuantOptions;
+use exporter::style::quantise_adapter;
+use ndarray::{Array1, Array2};
+use phasegate::Model;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Control points of the synthetic models (cubic gating).
+const EXPERTS: usize = 4;
+
+fn normal(rng: &mut ChaCha8Rng) -> f64 {
+    // Irwin-Hall: close enough to normal for weights.
+    (0..12).map(|_| rng.gen_range(0.0..1.0)).sum::<f64>() - 6.0
+}
+
+fn vecs(rng: &mut ChaCha8Rng, n: usize, sd: f64, mean: f64) -> Vec<Array1<f64>> {
+    (0..EXPERTS)
+        .map(|_| Array1::from_shape_fn(n, |_| mean + sd * normal(rng)))
+        .collect()
+}
+
+fn cp_layer(rng: &mut ChaCha8Rng, out: usize, inp: usize, rank: usize) -> CpLayer {
+    CpLayer {
+        a: Array2::from_shape_fn((out, rank), |_| normal(rng) / (rank as f64).sqrt()),
+        b: Array2::from_shape_fn((inp, rank), |_| normal(rng) / (inp as f64).sqrt()),
+        d: Array2::from_shape_fn((EXPERTS, rank), |_| 1.0 + 0.3 * normal(rng)),
+        bias: vecs(rng, out, 0.1, 0.0),
+    }
+}
+
+fn dense_layer(rng: &mut ChaCha8Rng, out: usize, inp: usize) -> ExpertLayer {
+    let sd = 1.5 / (inp as f64).sqrt();
+    let base = Array2::from_shape_fn((out, inp), |_| normal(rng) * sd);
+    ExpertLayer {
+        w: (0..EXPERTS)
+            .map(|_| base.mapv(|v| v + 0.4 * sd * normal(rng)))
+            .collect(),
+        b: vecs(rng, out, 0.1, 0.0),
+    }
+}
+
+/// A whole-network CP model with cubic gating: CP `input -> hidden` (rank
+/// `rank`), diagonal `hidden -> hidden`, CP `hidden -> output` (rank
+/// `rank / 2`, at least 1). Every layer gated by the phase.
+pub fn cp_net(seed: u64, input: usize, hidden: usize, output: usize, rank: usize) -> FloatNet {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    FloatNet {
+        mode: GatingMode::Cubic,
+        xmean: Array1::from_shape_fn(input, |_| normal(&mut rng)),
+        xstd: Array1::from_shape_fn(input, |_| rng.gen_range(0.2..3.0)),
+        ymean: Array1::from_shape_fn(output, |_| 3.0 * normal(&mut rng)),
+        ystd: Array1::from_shape_fn(output, |_| rng.gen_range(0.1..10.0)),
+        layers: vec![
+            NetLayer::Cp(cp_layer(&mut rng, hidden, input, rank)),
+            NetLayer::Diagonal(DiagLayer {
+                w: vecs(&mut rng, hidden, 0.3, 1.0),
+                b: vecs(&mut rng, hidden, 0.1, 0.0),
+            }),
+            NetLayer::Cp(cp_layer(&mut rng, output, hidden, (rank / 2).max(1))),
+        ],
+    }
+}
+
+/// A small PFNN-shaped dense base (cubic gating): `input -> hidden ->
+/// hidden -> output`.
+pub fn pfnn_base(seed: u64, input: usize, hidden: usize, output: usize) -> FloatPfnn {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    FloatPfnn {
+        mode: GatingMode::Cubic,
+        xmean: Array1::from_shape_fn(input, |_| normal(&mut rng)),
+        xstd: Array1::from_shape_fn(input, |_| rng.gen_range(0.2..3.0)),
+        ymean: Array1::from_shape_fn(output, |_| 3.0 * normal(&mut rng)),
+        ystd: Array1::from_shape_fn(output, |_| rng.gen_range(0.1..10.0)),
+        layers: [
+            dense_layer(&mut rng, hidden, input),
+            dense_layer(&mut rng, hidden, hidden),
+            dense_layer(&mut rng, output, hidden),
+        ],
+    }
+}
+
+/// A residual adapter beside layer 1 of a base whose hidden width is
+/// `width`: `form` is `full`, `diagonal` or `cp` (rank `rank`), gated by the
+/// phase, with weights large enough to change the outputs clearly.
+pub fn adapter(form: &str, width: usize, rank: usize, seed: u64) -> Adapter {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let sd = 0.4 / (width as f64).sqrt();
+    let op = match form {
+        "full" => NetLayer::Dense(ExpertLayer {
+            w: (0..EXPERTS)
+                .map(|_| Array2::from_shape_fn((width, width), |_| sd * normal(&mut rng)))
+                .collect(),
+            b: vecs(&mut rng, width, 0.1, 0.0),
+        }),
+        "diagonal" => NetLayer::Diagonal(DiagLayer {
+            w: vecs(&mut rng, width, 0.3, 0.0),
+            b: vecs(&mut rng, width, 0.1, 0.0),
+        }),
+        _ => NetLayer::Cp(CpLayer {
+            a: Array2::from_shape_fn((width, rank), |_| 0.3 * normal(&mut rng)),
+            b: Array2::from_shape_fn((width, rank), |_| 0.3 * normal(&mut rng)),
+            d: Array2::from_shape_fn((EXPERTS, rank), |_| 0.4 + 0.1 * normal(&mut rng)),
+            bias: vecs(&mut rng, width, 0.1, 0.0),
+        }),
+    };
+    Adapter { layer: 1, op }
+}
+
+/// Quantises `adapter` for `base_blob` (float twin `base`, int8 weights) and
+/// encodes the style blob named `name`; with `base_crc`, the blob claims
+/// that base instead of `base_blob`'s payload CRC (a style "for another
+/// base" whose CRC is known in advance).
+pub fn style_blob(
+    base_blob: &[u8],
+    base: &FloatNet,
+    adapter: &Adapter,
+    name: &str,
+    base_crc: Option<u32>,
+) -> Result<Vec<u8>> {
+    let model = Model::from_bytes(base_blob).map_err(|e| anyhow!("base blob: {e}"))?;
+    let mut q = quantise_adapter(&model, base, adapter, name, &QuantOptions::default())?;
+    if let (Some(crc), QKind::Style { base_crc, .. }) = (base_crc, &mut q.kind) {
+        *base_crc = crc;
+    }
+    Ok(encode_net(&q)?)
+}
+
+/// Two styles for the embedded default model, beside its layer 1 (32
+/// wide): `snap-cp` (CP, rank 8) and `snap-diagonal`.
+pub fn default_model_styles() -> Result<Vec<Vec<u8>>> {
+    let net = FloatNet::from_pfnn(&crate::default_model::float_model()?);
+    let blob = crate::default_model::BLOB;
+    let width = crate::default_model::HIDDEN;
+    Ok(vec![
+        style_blob(blob, &net, &adapter("cp", width, 8, 31), "snap-cp", None)?,
+        style_blob(
+            blob,
+            &net,
+            &adapter("diagonal", width, 0, 32),
+            "snap-diagonal",
+            None,
+        )?,
+    ])
+}
+
+/// A style that claims the base with payload CRC `base_crc` (built for the
+/// default model, so everything but the CRC fits it).
+pub fn default_model_style_for_crc(base_crc: u32) -> Result<Vec<u8>> {
+    let net = FloatNet::from_pfnn(&crate::default_model::float_model()?);
+    style_blob(
+        crate::default_model::BLOB,
+        &net,
+        &adapter("cp", crate::default_model::HIDDEN, 8, 31),
+        "other-base",
+        Some(base_crc),
+    )
+}
