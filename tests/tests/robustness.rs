@@ -7,7 +7,10 @@
 //!   and encoder (`exporter::export::export_pfnn`), int8 and int16 weights;
 //! * `hand_model()`: a hand-made three-layer model with a five-point
 //!   Catmull-Rom gating, both weight formats and both accumulator widths,
-//!   an ungated last layer.
+//!   an ungated last layer;
+//! * `cp_and_styles()`: a whole-network CP model (CP, diagonal, CP layers)
+//!   and style blobs (CP, diagonal and full adapters) for a small dense
+//!   base, all through the real exporter.
 
 use exporter::blob_writer::{encode, frame, BlobLayer, BlobModel};
 use exporter::export::export_pfnn;
@@ -18,7 +21,10 @@ use phasegate::blob::{
     crc32, AccWidth, Activation, Gating, Header, LayerDesc, LayerOp, ModelKind, Requant, Section,
     WeightFormat, REQUANT_RECORD_LEN,
 };
-use phasegate::{blob_len_from_prefix, Error, Model, Phase, Runtime, STAGE};
+use phasegate::style::BlendWeight;
+use phasegate::{
+    blob_len_from_prefix, Error, Mix, Model, Phase, Runtime, Style, StyleId, StyledRuntime, STAGE,
+};
 use proptest::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -292,7 +298,34 @@ fn is_header_class(e: &Error) -> bool {
     )
 }
 
+/// Loads a model blob exactly (`true`) or from a region (`false`).
+fn load_model(bytes: &[u8], exact: bool) -> Result<(), Error> {
+    if exact {
+        Model::from_bytes(bytes).map(|_| ())
+    } else {
+        Model::from_region(bytes).map(|_| ())
+    }
+}
+
+/// Loads a style blob exactly (`true`) or from a region (`false`).
+fn load_style(bytes: &[u8], exact: bool) -> Result<(), Error> {
+    if exact {
+        Style::from_bytes(bytes).map(|_| ())
+    } else {
+        Style::from_region(bytes).map(|_| ())
+    }
+}
+
 fn flip_all(blob: &[u8], seed: u64, random_flips: usize) -> usize {
+    flip_all_with(blob, seed, random_flips, load_model)
+}
+
+fn flip_all_with(
+    blob: &[u8],
+    seed: u64,
+    random_flips: usize,
+    load: fn(&[u8], bool) -> Result<(), Error>,
+) -> usize {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let start = payload_start(blob);
     // Every bit of preamble, header and padding, then random bits, half of
@@ -313,13 +346,9 @@ fn flip_all(blob: &[u8], seed: u64, random_flips: usize) -> usize {
         let mut d = blob.to_vec();
         d[pos] ^= 1 << bit;
         let want = single_flip_error(blob, &d, pos);
+        assert_eq!(load(&d, true).unwrap_err(), want, "bit {bit} of byte {pos}");
         assert_eq!(
-            Model::from_bytes(&d).unwrap_err(),
-            want,
-            "bit {bit} of byte {pos}"
-        );
-        assert_eq!(
-            Model::from_region(&d).unwrap_err(),
+            load(&d, false).unwrap_err(),
             want,
             "bit {bit} of byte {pos}"
         );
@@ -1557,4 +1586,194 @@ proptest! {
         p.reseal();
         loads_and_runs(&p.blob());
     }
+}
+
+// ---------------------------------------------------------------------------
+// (f) CP models and style blobs: the same guarantees.
+
+struct CpAndStyles {
+    cp: Vec<u8>,
+    base: Vec<u8>,
+    styles: Vec<Vec<u8>>,
+}
+
+fn cp_and_styles() -> CpAndStyles {
+    use host_sim::target::synthetic;
+    let opts = QuantOptions {
+        calibration_samples: 128,
+        ..QuantOptions::default()
+    };
+    let cp = exporter::cp::export_net(&synthetic::cp_net(3, 20, 24, 12, 6), &opts)
+        .unwrap()
+        .0;
+    let pfnn = synthetic::pfnn_base(4, 20, 24, 12);
+    let base = export_pfnn(&pfnn, None, &opts).unwrap().0;
+    let net = exporter::cp::float::FloatNet::from_pfnn(&pfnn);
+    let styles = ["cp", "diagonal", "full"]
+        .iter()
+        .enumerate()
+        .map(|(i, form)| {
+            let ad = synthetic::adapter(form, 24, 5, 30 + i as u64);
+            synthetic::style_blob(&base, &net, &ad, form, None).unwrap()
+        })
+        .collect();
+    CpAndStyles { cp, base, styles }
+}
+
+/// Every mix of `styles` (none, each one, each ordered pair blended at
+/// weights 0, 1/2 and 1).
+fn mixes(styles: usize) -> Vec<Mix> {
+    let mut v = vec![Mix::Base];
+    for a in 0..styles as u8 {
+        v.push(Mix::One(StyleId(a)));
+        for b in 0..styles as u8 {
+            for w in [0.0, 0.5, 1.0] {
+                v.push(Mix::Blend {
+                    from: StyleId(a),
+                    to: StyleId(b),
+                    weight: BlendWeight::from_num(w),
+                });
+            }
+        }
+    }
+    v
+}
+
+/// Runs extreme inputs at `phases` through the styled runtime with every
+/// mix; the float and the integer paths agree bit for bit.
+fn hammer_styled(base: Model<'_>, styles: &[Style<'_>], phases: &[u32]) -> usize {
+    let Ok(mut rt) = StyledRuntime::<'_, 64, 256, 4>::new(base) else {
+        return 0;
+    };
+    let attached = styles.iter().filter(|s| rt.add_style(**s).is_ok()).count();
+    let (n, m) = (rt.model().input_dim(), rt.model().output_dim());
+    let mut runs = 0;
+    for mix in mixes(attached) {
+        rt.set_mix(mix).unwrap();
+        for x in extreme_inputs(n) {
+            let mut q = vec![0i16; n];
+            rt.quantise_input(&x, &mut q).unwrap();
+            for &ph in phases {
+                let mut y = vec![0f32; m];
+                rt.run(Phase::from_bits(ph), &x, &mut y).unwrap();
+                let yq = rt.run_quantised(Phase::from_bits(ph), &q).unwrap().to_vec();
+                let mut back = vec![0f32; m];
+                rt.dequantise_output(&yq, &mut back).unwrap();
+                assert_eq!(
+                    back.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    y.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+                );
+                runs += 1;
+            }
+        }
+    }
+    runs
+}
+
+#[test]
+fn single_bit_flips_in_cp_models_and_styles_are_refused() {
+    let b = cp_and_styles();
+    let mut total = flip_all_with(&b.cp, 200, 4_000, load_model);
+    for (i, s) in b.styles.iter().enumerate() {
+        total += flip_all_with(s, 210 + i as u64, 2_000, load_style);
+    }
+    assert!(total >= 10_000, "{total}");
+}
+
+#[test]
+fn cp_models_and_styles_take_extreme_inputs_at_any_phase() {
+    let b = cp_and_styles();
+    let outs = hammer::<64>(Model::from_bytes(&b.cp).unwrap(), &phases());
+    assert_eq!(outs.len(), 7 * phases().len());
+    let styles: Vec<Style<'_>> = b
+        .styles
+        .iter()
+        .map(|s| Style::from_bytes(s).unwrap())
+        .collect();
+    let some_phases: Vec<u32> = phases().into_iter().step_by(16).collect();
+    let runs = hammer_styled(Model::from_bytes(&b.base).unwrap(), &styles, &some_phases);
+    assert_eq!(runs, mixes(3).len() * 7 * some_phases.len());
+}
+
+/// Splits a blob into its postcard header bytes and its payload.
+fn raw_parts(blob: &[u8]) -> (Vec<u8>, Vec<u8>) {
+    let header_len = usize::from(u16::from_le_bytes([blob[6], blob[7]]));
+    (
+        blob[12..12 + header_len].to_vec(),
+        blob[payload_start(blob)..].to_vec(),
+    )
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// Random edits of a CP model's or a style's header bytes, framed with a
+    /// valid header CRC (so the header decoder and every check behind it
+    /// see them): refused with an error, or loaded and then run with
+    /// extreme inputs at any phase and every mix, never a panic.
+    #[test]
+    fn lying_cp_and_style_headers_never_panic(
+        which in 0usize..4,
+        edits in proptest::collection::vec((any::<u16>(), any::<u8>()), 1..6),
+    ) {
+        let b = cp_and_styles_cached();
+        let blob = if which == 0 { &b.cp } else { &b.styles[which - 1] };
+        let (mut header, payload) = raw_parts(blob);
+        for (at, v) in edits {
+            let i = usize::from(at) % header.len();
+            header[i] = v;
+        }
+        let damaged = frame_raw(&header, &payload);
+        let few = [0, 0x4000_0000, u32::MAX];
+        if which == 0 {
+            for m in [Model::from_bytes(&damaged), Model::from_region(&damaged)].into_iter().flatten() {
+                hammer::<64>(m, &few);
+            }
+        } else if let Ok(style) = Style::from_bytes(&damaged) {
+            hammer_styled(Model::from_bytes(&b.base).unwrap(), &[style], &few);
+        }
+        let _ = Style::from_region(&damaged);
+        let _ = blob_len_from_prefix(&damaged);
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// Random factors, cores, middle and requantisation records, biases
+    /// (a CP model's or a style's payload bytes edited, the payload CRC
+    /// resealed): the loader's overflow proof refuses what could wrap or
+    /// saturate; what loads runs on extreme inputs, never a panic.
+    #[test]
+    fn random_cp_and_style_payload_values_never_panic(
+        which in 0usize..4,
+        seed in any::<u64>(),
+        density in 1usize..32,
+    ) {
+        let b = cp_and_styles_cached();
+        let blob = if which == 0 { &b.cp } else { &b.styles[which - 1] };
+        let mut header = phasegate::blob::Framed::parse(blob, true).unwrap().header;
+        let mut payload = raw_parts(blob).1;
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        for _ in 0..density {
+            let at = rng.gen_range(0..payload.len());
+            payload[at] = rng.gen();
+        }
+        header.payload_crc = crc32(&payload);
+        let damaged = frame(&header, &payload);
+        let few = [0, 0x4000_0000, u32::MAX];
+        if which == 0 {
+            if let Ok(m) = Model::from_bytes(&damaged) {
+                hammer::<64>(m, &few);
+            }
+        } else if let Ok(style) = Style::from_bytes(&damaged) {
+            hammer_styled(Model::from_bytes(&b.base).unwrap(), &[style], &few);
+        }
+    }
+}
+
+/// Built once: the exporter's calibration is the slow part.
+fn cp_and_styles_cached() -> &'static CpAndStyles {
+    static BLOBS: std::sync::OnceLock<CpAndStyles> = std::sync::OnceLock::new();
+    BLOBS.get_or_init(cp_and_styles)
 }
