@@ -42,6 +42,8 @@ use cortex_m_rt::{entry, exception, ExceptionFrame};
 use defmt::{error, info, Display2Format};
 use defmt_semihosting as _;
 use phasegate::blob::{LayerOp, MAGIC};
+#[cfg(feature = "controller")]
+use phasegate::controller::{layout, Locomotion, Network};
 use phasegate::{Model, Phase, Style, StyledRuntime};
 use semihosting::fs::File;
 use semihosting::io::Write as _;
@@ -272,6 +274,9 @@ fn main() -> ! {
             exit(wire::exit::BAD_INPUT);
         }
     };
+    if input.mode == wire::Mode::Controller {
+        run_controller(rt, &input, records, calib_ticks);
+    }
     if input.input_dim as usize != input_dim || input.output_dim as usize != output_dim {
         error!(
             "input image is for a {=u32} -> {=u32} model, the blob is {=usize} -> {=usize}",
@@ -289,21 +294,9 @@ fn main() -> ! {
         frames: input.frames,
         output_dim: input.output_dim,
         input_crc: input.crc,
+        mode: input.mode,
     };
-    let mut file = match File::create(c"phasegate-out.bin") {
-        Ok(f) => f,
-        Err(_) => {
-            error!(
-                "cannot create {=str} on the host (semihosting)",
-                wire::OUTPUT_FILE
-            );
-            exit(wire::exit::OUTPUT_ERROR);
-        }
-    };
-    if file.write_all(&out_header.encode()).is_err() {
-        error!("cannot write {=str}", wire::OUTPUT_FILE);
-        exit(wire::exit::OUTPUT_ERROR);
-    }
+    let mut file = create_output(&out_header);
 
     // The runtime accepted the model, so both dims fit W (they are layer
     // widths); checked again here rather than trusted, so no slice panics.
@@ -387,6 +380,179 @@ fn main() -> ! {
     }
     info!(
         "{=u32} frames run, outputs written to {=str}",
+        frames_done,
+        wire::OUTPUT_FILE
+    );
+    finish(frames_done, calib_ticks, Some(file));
+}
+
+/// Creates the output file and writes its header; exits with
+/// [`wire::exit::OUTPUT_ERROR`] on failure.
+fn create_output(header: &wire::OutputHeader) -> File {
+    let mut file = match File::create(c"phasegate-out.bin") {
+        Ok(f) => f,
+        Err(_) => {
+            error!(
+                "cannot create {=str} on the host (semihosting)",
+                wire::OUTPUT_FILE
+            );
+            exit(wire::exit::OUTPUT_ERROR);
+        }
+    };
+    if file.write_all(&header.encode()).is_err() {
+        error!("cannot write {=str}", wire::OUTPUT_FILE);
+        exit(wire::exit::OUTPUT_ERROR);
+    }
+    file
+}
+
+/// Controller mode without the `controller` feature: refused.
+#[cfg(not(feature = "controller"))]
+#[inline(never)]
+fn run_controller(_: &mut Rt, _: &wire::InputHeader, _: &[u8], _: u32) -> ! {
+    error!("controller mode is not built into this firmware (cargo build --release --features controller)");
+    exit(wire::exit::NO_CONTROLLER);
+}
+
+/// The loop's state, in .bss (about 6 KB: trajectory, joint velocities,
+/// the network's input and output vectors, the pose).
+#[cfg(feature = "controller")]
+static LOCOMOTION: Slot<Locomotion<f32>> = Slot::empty();
+
+/// The styled runtime as the loop's network, timing each inference.
+#[cfg(feature = "controller")]
+struct Timed<'r> {
+    rt: &'r mut Rt,
+    ticks: u32,
+}
+
+#[cfg(feature = "controller")]
+impl Network<f32> for Timed<'_> {
+    fn predict(
+        &mut self,
+        phase: f32,
+        x: &[f32; layout::INPUTS],
+        y: &mut [f32; layout::OUTPUTS],
+    ) -> phasegate::Result<()> {
+        let t0 = measure::now();
+        let r = self.rt.predict(phase, x, y);
+        self.ticks = self
+            .ticks
+            .wrapping_add(measure::elapsed(t0, measure::now()));
+        r
+    }
+
+    fn mean_output(&self, y: &mut [f32; layout::OUTPUTS]) -> phasegate::Result<()> {
+        self.rt.mean_output(y)
+    }
+}
+
+/// Makes the loop's state (reset from the model's mean output) and moves
+/// it into its static. Not inlined, for the same reason as
+/// [`init_runtime`].
+#[cfg(feature = "controller")]
+#[inline(never)]
+fn init_locomotion(rt: &Rt) -> Result<&'static mut Locomotion<f32>, phasegate::Error> {
+    let state = Locomotion::new(rt)?;
+    match LOCOMOTION.init(state) {
+        Some(s) => Ok(s),
+        None => exit(wire::exit::PANIC),
+    }
+}
+
+/// Controller mode: per record, `set_mix` then `Locomotion::step` with the
+/// record's command; writes each pose and its timings; never returns.
+#[cfg(feature = "controller")]
+#[inline(never)]
+fn run_controller(rt: &mut Rt, input: &wire::InputHeader, records: &[u8], calib_ticks: u32) -> ! {
+    let model = rt.model();
+    let (inputs, outputs) = (model.input_dim(), model.output_dim());
+    if inputs != layout::INPUTS || outputs != layout::OUTPUTS {
+        let e = phasegate::Error::NotPfnn {
+            inputs: inputs as u32,
+            outputs: outputs as u32,
+        };
+        error!("controller refused: {} ({})", e, Display2Format(&e));
+        exit(wire::exit::NOT_PFNN);
+    }
+    if input.input_dim as usize != inputs || input.output_dim as usize != outputs {
+        error!(
+            "input image is for a {=u32} -> {=u32} model, the blob is {=usize} -> {=usize}",
+            input.input_dim, input.output_dim, inputs, outputs
+        );
+        exit(wire::exit::BAD_INPUT);
+    }
+    let state = match init_locomotion(rt) {
+        Ok(s) => s,
+        Err(e) => {
+            error!("controller refused: {} ({})", e, Display2Format(&e));
+            exit(wire::exit::NOT_PFNN);
+        }
+    };
+    info!(
+        "controller mode: {=u32} commands, loop state {=usize} B",
+        input.frames,
+        core::mem::size_of::<Locomotion<f32>>()
+    );
+    // SAFETY: IO is made with `Slot::with`.
+    let Some(io) = (unsafe { IO.take() }) else {
+        exit(wire::exit::PANIC)
+    };
+    let Some(record) = io.record.get_mut(..wire::POSE_RECORD_LEN) else {
+        exit(wire::exit::PANIC)
+    };
+    let mut file = create_output(&wire::OutputHeader {
+        frames: input.frames,
+        output_dim: input.output_dim,
+        input_crc: input.crc,
+        mode: input.mode,
+    });
+    let mut net = Timed { rt, ticks: 0 };
+    let mut frames_done = 0u32;
+    for (i, rec) in records.chunks_exact(input.record_len()).enumerate() {
+        let Some((mix, command)) = wire::read_command_record(rec) else {
+            exit(wire::exit::BAD_INPUT)
+        };
+        let mix = match wire::decode_mix(&mix) {
+            Ok(mix) => mix,
+            Err(e) => {
+                error!("frame {=usize}: mix field refused: {}", i, e);
+                exit(wire::exit::FRAME_ERROR);
+            }
+        };
+        if let Err(e) = net.rt.set_mix(mix) {
+            error!(
+                "frame {=usize}: mix refused: {} ({})",
+                i,
+                e,
+                Display2Format(&e)
+            );
+            exit(wire::exit::FRAME_ERROR);
+        }
+        net.ticks = 0;
+        let t0 = measure::now();
+        let result = state.step(&mut net, &command);
+        let t1 = measure::now();
+        let pose = match result {
+            Ok(p) => p,
+            Err(e) => {
+                error!("frame {=usize}: {} ({})", i, e, Display2Format(&e));
+                exit(wire::exit::FRAME_ERROR);
+            }
+        };
+        let head = wire::RecordHead {
+            infer_ticks: net.ticks,
+            frame_ticks: measure::elapsed(t0, t1),
+        };
+        if wire::encode_pose_record(head, pose, record).is_none() || file.write_all(record).is_err()
+        {
+            error!("frame {=usize}: cannot write {=str}", i, wire::OUTPUT_FILE);
+            exit(wire::exit::OUTPUT_ERROR);
+        }
+        frames_done += 1;
+    }
+    info!(
+        "{=u32} controller steps run, poses written to {=str}",
         frames_done,
         wire::OUTPUT_FILE
     );

@@ -17,12 +17,31 @@
 //! | 8 | 4 | frames N |
 //! | 12 | 4 | input dim I |
 //! | 16 | 4 | output dim O (what the host expects the model to produce) |
-//! | 20 | 4 | record length = 12 + 4 I |
+//! | 20 | 4 | record length: 12 + 4 I (network mode), 40 (controller mode) |
 //! | 24 | 4 | CRC-32 (ISO-HDLC) of the N records |
-//! | 28 | 4 | reserved, 0 |
+//! | 28 | 4 | mode: 0 = network, 1 = controller (any other value: [`WireError::UnknownMode`]) |
 //!
-//! then N records: the frame's mix (8 bytes, below), phase (f32, radians),
-//! I inputs (f32, model units).
+//! **Network mode** (0): N records of the frame's mix (8 bytes, below),
+//! phase (f32, radians), I inputs (f32, model units).
+//!
+//! **Controller mode** (1): the firmware runs the locomotion loop
+//! (`Locomotion<f32>` over the styled runtime, reset from the model) and
+//! the records carry commands instead of network inputs. I and O must be
+//! the PFNN's 342 and 311 (a model of another shape is refused by the
+//! firmware with `Error::NotPfnn`, exit code [`exit::NOT_PFNN`]). Each of
+//! the N records is 40 bytes: the frame's mix (8 bytes, below), then the
+//! `Command` as 8 f32 ([`encode_command`]):
+//!
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 8 | mix field |
+//! | 8 | 8 | `velocity[0]`, `velocity[1]` (f32) |
+//! | 16 | 8 | `facing[0]`, `facing[1]` (f32) |
+//! | 24 | 16 | `gait.stand`, `gait.walk`, `gait.jog`, `gait.crouch` (f32) |
+//!
+//! The f32 are raw bits: the firmware rebuilds the exact `Command` (NaN
+//! and infinities included, which `Locomotion::step` refuses with
+//! `BadCommand`: exit code [`exit::FRAME_ERROR`]).
 //!
 //! The **mix field** says which style adapters the frame uses
 //! ([`Mix`]; the firmware calls `StyledRuntime::set_mix` with it before the
@@ -46,13 +65,25 @@
 //!
 //! Firmware -> host: the **output file** `phasegate-out.bin` (version 1),
 //! written through semihosting in QEMU's working directory: a 32-byte header
-//! (`PGOT`, version, header length, N, O, record length = 8 + 6 O, the
-//! input image's CRC, 8 reserved bytes), N records (u32 inference ticks,
-//! u32 whole-frame ticks, O i16 quantised outputs, O f32 de-quantised
-//! outputs), and a 32-byte trailer (`PGND`, frames done, stack high-water
+//! (`PGOT`, version, header length, N, O, record length, the input image's
+//! CRC, the mode u32 (echoed from the input image), 4 reserved bytes), N
+//! records, and a 32-byte trailer (`PGND`, frames done, stack high-water
 //! bytes, stack size bytes, calibration ticks, calibration instructions,
 //! 8 reserved bytes).
+//!
+//! Network-mode records (8 + 6 O bytes): u32 inference ticks, u32
+//! whole-frame ticks, O i16 quantised outputs, O f32 de-quantised outputs.
+//!
+//! Controller-mode records (12 + 4 x [`POSE_VALUES`] = 936 bytes): u32
+//! network ticks (the loop's `Network::predict`: `StyledRuntime::run`,
+//! i.e. input quantisation, inference, de-quantisation), u32 step ticks
+//! (the whole `Locomotion::step`), u32 `Pose::frame`, then the pose's 231
+//! f32 as raw bits ([`encode_pose_record`]): `root_position` (3),
+//! `facing` (2), `joint_positions` (31 x 3), `joint_rotations` (31 x 4,
+//! `[x, y, z, w]`), `contacts` (4), `phase` (1), `gaits` (4).
 
+use phasegate::controller::layout::JOINTS;
+use phasegate::controller::{Command, GaitWeights, Pose};
 use phasegate::style::BlendWeight;
 use phasegate::{Mix, StyleId};
 
@@ -76,6 +107,44 @@ pub const MAX_BLEND_BITS: u16 = 0x8000;
 pub const HEADER_LEN: usize = 32;
 /// File name of the output file, relative to QEMU's working directory.
 pub const OUTPUT_FILE: &str = "phasegate-out.bin";
+/// f32 values of a [`Command`] on the wire.
+pub const COMMAND_VALUES: usize = 8;
+/// Bytes of a controller-mode input record: the mix field and the command.
+pub const COMMAND_RECORD_LEN: usize = MIX_LEN + 4 * COMMAND_VALUES;
+/// f32 values of a [`Pose`] on the wire (everything but `frame`).
+pub const POSE_VALUES: usize = 3 + 2 + 3 * JOINTS + 4 * JOINTS + 4 + 1 + 4;
+/// Bytes of a controller-mode output record: two tick counts, the frame
+/// number and the pose's f32.
+pub const POSE_RECORD_LEN: usize = 12 + 4 * POSE_VALUES;
+
+/// What the records of an input image hold.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Mode {
+    /// Raw network frames: mix, phase, inputs (mode 0).
+    Network,
+    /// Controller commands: mix, command (mode 1).
+    Controller,
+}
+
+impl Mode {
+    /// The mode's number on the wire.
+    pub fn to_u32(self) -> u32 {
+        match self {
+            Mode::Network => 0,
+            Mode::Controller => 1,
+        }
+    }
+
+    /// The mode with number `v`.
+    pub fn from_u32(v: u32) -> Result<Mode, WireError> {
+        match v {
+            0 => Ok(Mode::Network),
+            1 => Ok(Mode::Controller),
+            m => Err(WireError::UnknownMode(m)),
+        }
+    }
+}
 
 /// Why an input image or output file is refused.
 #[derive(Clone, Copy, Debug, Eq, PartialEq)]
@@ -105,6 +174,8 @@ pub enum WireError {
     },
     /// The records do not match their CRC-32.
     CrcMismatch,
+    /// The header's mode is neither 0 (network) nor 1 (controller).
+    UnknownMode(u32),
 }
 
 impl core::fmt::Display for WireError {
@@ -125,6 +196,9 @@ impl core::fmt::Display for WireError {
                 write!(f, "truncated: needs {needed} bytes, has {available}")
             }
             WireError::CrcMismatch => f.write_str("records do not match their CRC-32"),
+            WireError::UnknownMode(m) => {
+                write!(f, "unknown mode {m} (0 = network, 1 = controller)")
+            }
         }
     }
 }
@@ -200,12 +274,18 @@ pub struct InputHeader {
     pub output_dim: u32,
     /// CRC-32 of the records.
     pub crc: u32,
+    /// What the records hold.
+    pub mode: Mode,
 }
 
 impl InputHeader {
-    /// Bytes of one record: the mix field, the phase and the inputs.
+    /// Bytes of one record: the mix field, the phase and the inputs
+    /// (network mode), or the mix field and the command (controller mode).
     pub fn record_len(&self) -> usize {
-        RECORD_HEAD_LEN + 4 * self.input_dim as usize
+        match self.mode {
+            Mode::Network => RECORD_HEAD_LEN + 4 * self.input_dim as usize,
+            Mode::Controller => COMMAND_RECORD_LEN,
+        }
     }
 
     /// Bytes of the whole image.
@@ -224,6 +304,7 @@ impl InputHeader {
         put_u32(&mut b, 16, self.output_dim);
         put_u32(&mut b, 20, self.record_len() as u32);
         put_u32(&mut b, 24, self.crc);
+        put_u32(&mut b, 28, self.mode.to_u32());
         b
     }
 
@@ -236,6 +317,7 @@ impl InputHeader {
             input_dim: u32_at(region, 12),
             output_dim: u32_at(region, 16),
             crc: u32_at(region, 24),
+            mode: Mode::from_u32(u32_at(region, 28))?,
         };
         if h.input_dim == 0
             || h.input_dim > 0x0100_0000
@@ -356,6 +438,125 @@ pub fn decode_mix(b: &[u8; MIX_LEN]) -> Result<Mix, WireError> {
     })
 }
 
+/// The command's 8 f32, in wire order (see the module docs).
+fn command_values(c: &Command) -> [f32; COMMAND_VALUES] {
+    let g = &c.gait;
+    [
+        c.velocity[0],
+        c.velocity[1],
+        c.facing[0],
+        c.facing[1],
+        g.stand,
+        g.walk,
+        g.jog,
+        g.crouch,
+    ]
+}
+
+/// The 32 bytes of `command` (8 f32, raw bits, little-endian).
+pub fn encode_command(command: &Command) -> [u8; 4 * COMMAND_VALUES] {
+    let mut b = [0u8; 4 * COMMAND_VALUES];
+    for (d, v) in b.chunks_exact_mut(4).zip(command_values(command)) {
+        d.copy_from_slice(&v.to_bits().to_le_bytes());
+    }
+    b
+}
+
+/// The command in `b` (at least 32 bytes; missing bytes read as 0).
+pub fn decode_command(b: &[u8]) -> Command {
+    let v = |i: usize| f32::from_bits(u32_at(b, 4 * i));
+    Command {
+        velocity: [v(0), v(1)],
+        facing: [v(2), v(3)],
+        gait: GaitWeights {
+            stand: v(4),
+            walk: v(5),
+            jog: v(6),
+            crouch: v(7),
+        },
+    }
+}
+
+/// Writes one controller-mode input record (mix field, command) to the end
+/// of `out`.
+pub fn encode_command_record(mix: &[u8; MIX_LEN], command: &Command, out: &mut impl Extend<u8>) {
+    out.extend(mix.iter().copied());
+    out.extend(encode_command(command));
+}
+
+/// Reads one controller-mode input record: its raw mix field and command;
+/// `None` unless it is [`COMMAND_RECORD_LEN`] bytes.
+pub fn read_command_record(record: &[u8]) -> Option<([u8; MIX_LEN], Command)> {
+    if record.len() != COMMAND_RECORD_LEN {
+        return None;
+    }
+    let mix = record.get(..MIX_LEN)?.try_into().ok()?;
+    Some((mix, decode_command(record.get(MIX_LEN..)?)))
+}
+
+/// The pose's f32 in wire order: root position, facing, joint positions,
+/// joint rotations, contacts, phase, gaits ([`POSE_VALUES`] of them).
+pub fn pose_values(p: &Pose<f32>) -> impl Iterator<Item = &f32> {
+    p.root_position
+        .iter()
+        .chain(&p.facing)
+        .chain(p.joint_positions.iter().flatten())
+        .chain(p.joint_rotations.iter().flatten())
+        .chain(&p.contacts)
+        .chain(core::iter::once(&p.phase))
+        .chain(&p.gaits)
+}
+
+/// The pose's f32, mutably, in wire order.
+fn pose_values_mut(p: &mut Pose<f32>) -> impl Iterator<Item = &mut f32> {
+    p.root_position
+        .iter_mut()
+        .chain(&mut p.facing)
+        .chain(p.joint_positions.iter_mut().flatten())
+        .chain(p.joint_rotations.iter_mut().flatten())
+        .chain(&mut p.contacts)
+        .chain(core::iter::once(&mut p.phase))
+        .chain(&mut p.gaits)
+}
+
+/// Encodes one controller-mode output record into `buf` (length
+/// [`POSE_RECORD_LEN`]): network ticks, step ticks, the frame number and
+/// the pose; `None` on a length mismatch.
+pub fn encode_pose_record(head: RecordHead, pose: &Pose<f32>, buf: &mut [u8]) -> Option<()> {
+    if buf.len() != POSE_RECORD_LEN {
+        return None;
+    }
+    put_u32(buf, 0, head.infer_ticks);
+    put_u32(buf, 4, head.frame_ticks);
+    put_u32(buf, 8, pose.frame);
+    for (d, v) in buf
+        .get_mut(12..)?
+        .chunks_exact_mut(4)
+        .zip(pose_values(pose))
+    {
+        d.copy_from_slice(&v.to_bits().to_le_bytes());
+    }
+    Some(())
+}
+
+/// Decodes one controller-mode output record: its head (network ticks,
+/// step ticks) and the pose.
+pub fn decode_pose_record(buf: &[u8]) -> Option<(RecordHead, Pose<f32>)> {
+    if buf.len() != POSE_RECORD_LEN {
+        return None;
+    }
+    let head = RecordHead {
+        infer_ticks: u32_at(buf, 0),
+        frame_ticks: u32_at(buf, 4),
+    };
+    let mut pose = Pose::zero();
+    pose.frame = u32_at(buf, 8);
+    for (i, v) in pose_values_mut(&mut pose).enumerate() {
+        *v = f32::from_bits(u32_at(buf, 12 + 4 * i));
+    }
+    Some((head, pose))
+}
+
 /// Header of the output file.
 #[derive(Clone, Copy, Debug, Eq, PartialEq)]
 pub struct OutputHeader {
@@ -365,12 +566,17 @@ pub struct OutputHeader {
     pub output_dim: u32,
     /// The input image's CRC, echoed: binds these outputs to those inputs.
     pub input_crc: u32,
+    /// The input image's mode, echoed: what the records hold.
+    pub mode: Mode,
 }
 
 impl OutputHeader {
     /// Bytes of one record.
     pub fn record_len(&self) -> usize {
-        8 + 6 * self.output_dim as usize
+        match self.mode {
+            Mode::Network => 8 + 6 * self.output_dim as usize,
+            Mode::Controller => POSE_RECORD_LEN,
+        }
     }
 
     /// The 32 header bytes.
@@ -383,6 +589,7 @@ impl OutputHeader {
         put_u32(&mut b, 12, self.output_dim);
         put_u32(&mut b, 16, self.record_len() as u32);
         put_u32(&mut b, 20, self.input_crc);
+        put_u32(&mut b, 24, self.mode.to_u32());
         b
     }
 
@@ -393,6 +600,7 @@ impl OutputHeader {
             frames: u32_at(file, 8),
             output_dim: u32_at(file, 12),
             input_crc: u32_at(file, 20),
+            mode: Mode::from_u32(u32_at(file, 24))?,
         };
         if u32_at(file, 16) as usize != h.record_len() {
             return Err(WireError::BadHeader);
@@ -404,10 +612,13 @@ impl OutputHeader {
 /// One output record.
 #[derive(Clone, Copy, Debug, Eq, PartialEq)]
 pub struct RecordHead {
-    /// SysTick ticks spent in `Runtime::run_quantised` (integer inference).
+    /// SysTick ticks spent in `Runtime::run_quantised` (integer inference);
+    /// in controller mode, in the loop's `Network::predict` (`run`: input
+    /// quantisation, inference, de-quantisation).
     pub infer_ticks: u32,
     /// SysTick ticks for the whole frame: phase and input conversion,
-    /// inference and de-quantisation.
+    /// inference and de-quantisation; in controller mode, the whole
+    /// `Locomotion::step`.
     pub frame_ticks: u32,
 }
 
@@ -520,6 +731,12 @@ pub mod exit {
     /// another base model, incompatible with it, or too big for the
     /// firmware's scratch buffer or bank).
     pub const BAD_STYLE: i32 = 7;
+    /// Controller mode on a model that is not PFNN-shaped (342 inputs,
+    /// 311 outputs): `Error::NotPfnn`.
+    pub const NOT_PFNN: i32 = 8;
+    /// Controller mode on a firmware built without the `controller`
+    /// feature.
+    pub const NO_CONTROLLER: i32 = 9;
 
     /// One line saying what an exit code means.
     pub fn describe(code: i32) -> &'static str {
@@ -532,6 +749,8 @@ pub mod exit {
             OUTPUT_ERROR => "could not write the output file",
             HARD_FAULT => "hard fault or unexpected interrupt",
             BAD_STYLE => "style blob refused",
+            NOT_PFNN => "model is not PFNN-shaped: the controller needs 342 inputs and 311 outputs",
+            NO_CONTROLLER => "controller mode needs the firmware's `controller` feature",
             _ => "unknown exit code",
         }
     }

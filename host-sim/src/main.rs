@@ -91,7 +91,8 @@ enum Command {
         /// The model blob, flashed at the MODEL region on its own.
         #[arg(long)]
         model: PathBuf,
-        /// Frames to run (default: all golden frames, or 16 generated ones).
+        /// Frames to run (default: all golden frames, or 16 generated ones;
+        /// 60 controller steps with --controller).
         #[arg(long)]
         frames: Option<usize>,
         /// float32 (N, inputs) raw inputs in model units.
@@ -111,6 +112,14 @@ enum Command {
         /// `base*2,0*2` with one --style; cycle with two or more.
         #[arg(long, value_name = "SPEC")]
         mix: Option<host_sim::target::MixSpec>,
+        /// Run the locomotion controller on the firmware instead of raw
+        /// network frames: a rollout script (idle, walk, circle-left, zigzag,
+        /// jog-stop-jog, crouch-walk, or a JSON file) gives each frame's
+        /// command; every pose is compared bit for bit with the host's loop.
+        /// The model must be PFNN-shaped (342 inputs, 311 outputs). Default
+        /// 60 frames.
+        #[arg(long, value_name = "SCRIPT", conflicts_with = "inputs")]
+        controller: Option<String>,
     },
     /// Check the firmware's log snapshots (firmware/snapshots), or bless new ones.
     FirmwareSnapshots {
@@ -257,7 +266,18 @@ fn run(cli: Cli) -> Result<()> {
             phases,
             styles,
             mix,
+            controller,
         } => {
+            if let Some(script) = controller {
+                host_sim::target::controller::run(&host_sim::target::controller::ControllerArgs {
+                    model: &model,
+                    script: &script,
+                    frames,
+                    styles: &styles,
+                    mix,
+                })?;
+                return Ok(());
+            }
             host_sim::target::run_target(&host_sim::target::TargetArgs {
                 model,
                 frames,

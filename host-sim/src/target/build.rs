@@ -81,10 +81,29 @@ pub fn cargo_build(features: &[&str], target_dir: Option<&Path>) -> Result<Build
 
 /// Builds the firmware if needed (cargo decides) and returns its ELF path.
 pub fn build_firmware() -> Result<PathBuf> {
-    let out = cargo_build(&[], None)?;
+    build_checked(&[], None)
+}
+
+/// Builds the controller firmware (`--features controller`, into
+/// `firmware/target/controller` so that it never replaces the inference
+/// firmware's ELF) if needed and returns its ELF path.
+pub fn build_controller_firmware() -> Result<PathBuf> {
+    build_checked(
+        &["controller"],
+        Some(&firmware_dir().join("target").join("controller")),
+    )
+}
+
+fn build_checked(features: &[&str], target_dir: Option<&Path>) -> Result<PathBuf> {
+    let out = cargo_build(features, target_dir)?;
     if !out.success {
+        let with = if features.is_empty() {
+            String::new()
+        } else {
+            format!(" --features {}", features.join(","))
+        };
         bail!(
-            "firmware build failed (cargo build --release in {}):\n{}\n(is the target installed? rustup target add {TARGET})",
+            "firmware build failed (cargo build --release{with} in {}):\n{}\n(is the target installed? rustup target add {TARGET})",
             firmware_dir().display(),
             out.stderr.trim_end()
         );

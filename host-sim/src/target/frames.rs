@@ -81,6 +81,7 @@ impl Frames {
             input_dim: self.input_dim as u32,
             output_dim: output_dim as u32,
             crc: wire::crc32(&records),
+            mode: wire::Mode::Network,
         };
         let mut image = header.encode().to_vec();
         image.extend_from_slice(&records);

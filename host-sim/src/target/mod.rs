@@ -15,8 +15,13 @@
 //!   and timings to `phasegate-out.bin` in QEMU's working directory
 //!   (`wire.rs`, shared with the firmware), and exits through semihosting
 //!   with a code from `wire::exit`.
+//!
+//! With `--controller SCRIPT` ([`controller`]) the firmware built with its
+//! `controller` feature runs the locomotion loop on the script's commands
+//! and every pose is compared with the same loop on the host.
 
 pub mod build;
+pub mod controller;
 pub mod elf;
 pub mod frames;
 pub mod log;
@@ -37,7 +42,7 @@ use std::time::Duration;
 use anyhow::{bail, ensure, Context, Result};
 use phasegate::{Mix, Model, Phase, Style, StyledRuntime};
 
-pub use build::{build_firmware, cargo_build, firmware_dir, repo_root};
+pub use build::{build_controller_firmware, build_firmware, cargo_build, firmware_dir, repo_root};
 pub use elf::ElfInfo;
 pub use frames::Frames;
 pub use qemu::qemu_available;
@@ -52,11 +57,11 @@ pub const RAM_BUDGET: u64 = 64 * 1024;
 /// Issue 4's budget for .text.
 pub const TEXT_BUDGET: u64 = 64 * 1024;
 /// Activation capacity of the host runtime (the firmware's is 512).
-const HOST_W: usize = 8192;
+pub(crate) const HOST_W: usize = 8192;
 /// Adapter scratch of the host runtime (the firmware's is 2 x 512 + 64).
-const HOST_S: usize = 4 * HOST_W;
+pub(crate) const HOST_S: usize = 4 * HOST_W;
 /// Style bank of the host runtime (the firmware's holds 4).
-const HOST_N: usize = 16;
+pub(crate) const HOST_N: usize = 16;
 
 /// Arguments of `host-sim target`.
 #[derive(Clone, Debug, Default)]
@@ -89,7 +94,8 @@ pub struct Stats {
 }
 
 impl Stats {
-    fn of(values: &[u64]) -> Stats {
+    /// Min, median (lower middle) and max of `values`.
+    pub fn of(values: &[u64]) -> Stats {
         let mut v = values.to_vec();
         v.sort_unstable();
         match (v.first(), v.last()) {
@@ -475,7 +481,7 @@ pub fn run_target(args: &TargetArgs) -> Result<TargetReport> {
 /// -icount runs well over 50 million instructions per second here; this
 /// allows 10 per MAC at 5 million per second), overridable with
 /// `PHASEGATE_QEMU_TIMEOUT` (seconds).
-fn time_limit(frames: usize, macs: u32) -> Duration {
+pub(crate) fn time_limit(frames: usize, macs: u32) -> Duration {
     if let Some(secs) = std::env::var("PHASEGATE_QEMU_TIMEOUT")
         .ok()
         .and_then(|v| v.parse::<u64>().ok())
@@ -620,6 +626,11 @@ fn parse_outputs(
     let h = wire::OutputHeader::parse(file)
         .map_err(|e| anyhow::anyhow!("firmware output file: {e}"))?;
     ensure!(
+        h.mode == wire::Mode::Network,
+        "firmware output file is in {:?} mode, expected network mode",
+        h.mode
+    );
+    ensure!(
         h.frames as usize == frames && h.output_dim as usize == output_dim && h.input_crc == input_crc,
         "firmware output file is for {} frames x {} outputs (input CRC {:#x}), expected {frames} x {output_dim} ({input_crc:#x})",
         h.frames,
@@ -660,7 +671,7 @@ fn parse_outputs(
 }
 
 /// Flash and RAM figures from the ELF (and the measured stack).
-fn memory_use(elf: &ElfInfo, trailer: &wire::Trailer) -> (FlashUse, RamUse) {
+pub(crate) fn memory_use(elf: &ElfInfo, trailer: &wire::Trailer) -> (FlashUse, RamUse) {
     let flash = FlashUse {
         vector_table: elf.size(".vector_table"),
         text: elf.size(".text"),

@@ -12,7 +12,8 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 
 use super::{
-    boot, build_firmware, firmware_dir, frames, styles, synthetic, wire, ElfInfo, MixSpec,
+    boot, build_controller_firmware, build_firmware, controller, firmware_dir, frames, styles,
+    synthetic, wire, ElfInfo, MixSpec,
 };
 
 /// Where the model comes from in a scenario.
@@ -49,7 +50,13 @@ struct Scenario {
     /// Feed the golden vectors (else no input image), with every frame's
     /// mix from `cycle` when the scenario has styles (else base).
     golden_inputs: bool,
+    /// Run the `controller` firmware on [`CONTROLLER_FRAMES`] commands of
+    /// the `walk` script instead (controller mode).
+    controller: bool,
 }
+
+/// Commands the `controller-walk` scenario runs.
+const CONTROLLER_FRAMES: usize = 8;
 
 const SCENARIOS: &[Scenario] = &[
     Scenario {
@@ -57,36 +64,49 @@ const SCENARIOS: &[Scenario] = &[
         blob: Blob::Default,
         styles: Styles::None,
         golden_inputs: true,
+        controller: false,
     },
     Scenario {
         name: "model-only",
         blob: Blob::Default,
         styles: Styles::None,
         golden_inputs: false,
+        controller: false,
     },
     Scenario {
         name: "no-model",
         blob: Blob::None,
         styles: Styles::None,
         golden_inputs: false,
+        controller: false,
     },
     Scenario {
         name: "corrupt-model",
         blob: Blob::CorruptPayload,
         styles: Styles::None,
         golden_inputs: false,
+        controller: false,
     },
     Scenario {
         name: "golden-styles",
         blob: Blob::Default,
         styles: Styles::DefaultPair,
         golden_inputs: true,
+        controller: false,
     },
     Scenario {
         name: "style-other-base",
         blob: Blob::Default,
         styles: Styles::OtherBase,
         golden_inputs: false,
+        controller: false,
+    },
+    Scenario {
+        name: "controller-walk",
+        blob: Blob::Default,
+        styles: Styles::None,
+        golden_inputs: false,
+        controller: true,
     },
 ];
 
@@ -156,6 +176,13 @@ pub fn run_snapshots(overwrite: bool) -> Result<Vec<(&'static str, Outcome)>> {
     let other = styles::pack_styles(&[synthetic::default_model_style_for_crc(OTHER_BASE_CRC)?]);
     let elf_path = build_firmware()?;
     let elf = ElfInfo::read(&elf_path)?;
+    let ctl_path = build_controller_firmware()?;
+    let ctl_elf = ElfInfo::read(&ctl_path)?;
+    let walk = crate::rollout::Script::builtin("walk").context("the walk script")?;
+    let ctl_image = controller::controller_image(
+        &controller::script_commands(&walk, CONTROLLER_FRAMES),
+        &[wire::encode_mix(phasegate::Mix::Base); CONTROLLER_FRAMES],
+    );
     let scratch = tempfile::tempdir()?;
     let corrupt_path = scratch.path().join("corrupt.blob");
     let mut corrupt = blob.clone();
@@ -176,10 +203,19 @@ pub fn run_snapshots(overwrite: bool) -> Result<Vec<(&'static str, Outcome)>> {
             Styles::DefaultPair => (Some(&pair[..]), &styled_image),
             Styles::OtherBase => (Some(&other[..]), &image),
         };
-        let img = s.golden_inputs.then_some(&input_image[..]);
+        let img = if s.controller {
+            Some(&ctl_image[..])
+        } else {
+            s.golden_inputs.then_some(&input_image[..])
+        };
+        let (elf, elf_path) = if s.controller {
+            (&ctl_elf, &ctl_path)
+        } else {
+            (&elf, &elf_path)
+        };
         let booted = boot(
-            &elf,
-            &elf_path,
+            elf,
+            elf_path,
             blob,
             style_image,
             img,

@@ -288,8 +288,17 @@ fn output_records_round_trip() {
         frames: 3,
         output_dim: 4,
         input_crc: 0xDEAD_BEEF,
+        mode: wire::Mode::Network,
     };
     assert_eq!(wire::OutputHeader::parse(&h.encode()), Ok(h));
+    assert_eq!(h.record_len(), 8 + 6 * 4);
+    let c = wire::OutputHeader {
+        mode: wire::Mode::Controller,
+        ..h
+    };
+    assert_eq!(wire::OutputHeader::parse(&c.encode()), Ok(c));
+    assert_eq!(c.record_len(), 12 + 4 * 231);
+    assert_eq!(&c.encode()[24..28], &1u32.to_le_bytes());
 }
 
 #[test]
@@ -999,4 +1008,283 @@ fn unknown_style_or_malformed_mix_is_a_frame_error() {
             "{case}"
         );
     }
+}
+
+// ---- the controller loop on the target ----
+
+#[test]
+fn command_images_and_pose_records_round_trip() {
+    use phasegate::controller::{Command, GaitWeights, Pose};
+    let commands = [
+        Command::stand(),
+        Command {
+            velocity: [1.5, -2.25],
+            facing: [0.0, 1.0],
+            gait: GaitWeights {
+                stand: 0.125,
+                walk: 0.5,
+                jog: 0.25,
+                crouch: 1.0,
+            },
+        },
+        // Hostile values travel as raw bits (the firmware's step refuses them).
+        Command {
+            velocity: [f32::NAN, f32::INFINITY],
+            facing: [-0.0, f32::MIN_POSITIVE],
+            gait: GaitWeights::default(),
+        },
+    ];
+    let mixes = [
+        wire::encode_mix(Mix::Base),
+        wire::encode_mix(Mix::One(StyleId(1))),
+        wire::encode_mix(Mix::Base),
+    ];
+    let image = controller::controller_image(&commands, &mixes);
+    let (h, records) = wire::InputHeader::parse(&image).unwrap();
+    assert_eq!(h.mode, wire::Mode::Controller);
+    assert_eq!((h.frames, h.input_dim, h.output_dim), (3, 342, 311));
+    assert_eq!(h.record_len(), 40);
+    assert_eq!(&image[20..24], &40u32.to_le_bytes());
+    assert_eq!(&image[28..32], &1u32.to_le_bytes());
+    // Documented layout of record 1: mix, then velocity, facing, gaits.
+    let r1 = &records[40..80];
+    assert_eq!(&r1[..8], &[1, 1, 0, 0, 0, 0, 0, 0]);
+    assert_eq!(&r1[8..12], &1.5f32.to_le_bytes());
+    assert_eq!(&r1[20..24], &1.0f32.to_le_bytes());
+    assert_eq!(&r1[24..28], &0.125f32.to_le_bytes());
+    assert_eq!(&r1[36..40], &1.0f32.to_le_bytes());
+    let bits = |c: &Command| wire::encode_command(c);
+    for (i, r) in records.chunks_exact(h.record_len()).enumerate() {
+        let (mix, c) = wire::read_command_record(r).unwrap();
+        assert_eq!(mix, mixes[i]);
+        assert_eq!(bits(&c), bits(&commands[i]), "record {i}");
+    }
+    assert!(wire::read_command_record(&records[..39]).is_none());
+    // An unknown mode is refused.
+    let mut bad = image.clone();
+    bad[28] = 2;
+    assert_eq!(
+        wire::InputHeader::parse(&bad),
+        Err(wire::WireError::UnknownMode(2))
+    );
+
+    // Pose records: every value in its documented place.
+    let mut pose = Pose::<f32>::zero();
+    pose.frame = 77;
+    let mut k = 0u32;
+    let mut next = || {
+        k += 1;
+        k as f32 * 0.5 - 3.0
+    };
+    for v in pose
+        .root_position
+        .iter_mut()
+        .chain(&mut pose.facing)
+        .chain(pose.joint_positions.iter_mut().flatten())
+        .chain(pose.joint_rotations.iter_mut().flatten())
+        .chain(&mut pose.contacts)
+        .chain(std::iter::once(&mut pose.phase))
+        .chain(&mut pose.gaits)
+    {
+        *v = next();
+    }
+    let head = wire::RecordHead {
+        infer_ticks: 11,
+        frame_ticks: 22,
+    };
+    let mut buf = vec![0u8; wire::POSE_RECORD_LEN];
+    wire::encode_pose_record(head, &pose, &mut buf).unwrap();
+    assert_eq!(&buf[8..12], &77u32.to_le_bytes());
+    assert_eq!(&buf[12..16], &pose.root_position[0].to_le_bytes());
+    let rot = 12 + 4 * (3 + 2 + 3 * 31);
+    assert_eq!(
+        &buf[rot..rot + 4],
+        &pose.joint_rotations[0][0].to_le_bytes()
+    );
+    assert_eq!(&buf[buf.len() - 4..], &pose.gaits[3].to_le_bytes());
+    let (h2, p2) = wire::decode_pose_record(&buf).unwrap();
+    assert_eq!((h2, &p2), (head, &pose));
+    assert!(wire::decode_pose_record(&buf[1..]).is_none());
+    assert!(wire::encode_pose_record(head, &pose, &mut buf[1..]).is_none());
+
+    // Field names follow the same order, and a changed value is found.
+    assert_eq!(controller::pose_field_name(0), "root_position.x");
+    assert_eq!(controller::pose_field_name(5), "joint_positions[0].x");
+    assert_eq!(controller::pose_field_name(5 + 93), "joint_rotations[0].x");
+    assert_eq!(controller::pose_field_name(230), "gaits[3] (crouch)");
+    let mut other = pose.clone();
+    other.joint_rotations[2][3] = f32::from_bits(other.joint_rotations[2][3].to_bits() ^ 1);
+    let (n, first) =
+        controller::compare_poses(std::slice::from_ref(&pose), std::slice::from_ref(&other));
+    assert_eq!(n, 1);
+    assert_eq!(first[0].field, "joint_rotations[2].w");
+    assert_eq!(
+        controller::compare_poses(std::slice::from_ref(&pose), std::slice::from_ref(&pose)).0,
+        0
+    );
+}
+
+#[test]
+fn controller_is_bit_exact_on_the_default_model() {
+    let name = "controller_is_bit_exact_on_the_default_model";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    let Some(blob) = golden_or_skip(name) else {
+        return;
+    };
+    let report = controller::run(&controller::ControllerArgs {
+        model: &blob,
+        script: "walk",
+        frames: Some(60),
+        styles: &[],
+        mix: None,
+    })
+    .unwrap();
+    assert!(report.bit_exact());
+    assert_eq!(report.frames, 60);
+    assert!(report.network_instructions.min > 0);
+    assert!(report.step_instructions.min > report.network_instructions.max);
+    assert!(report.loop_instructions.min > 0);
+    // The poses moved: the walk is not the reset pose repeated.
+    let bytes = std::fs::read(&blob).unwrap();
+    let model = Model::from_bytes(&bytes).unwrap();
+    let cmds = controller::script_commands(&phasegate_script("walk"), 60);
+    let poses = controller::host_poses(model, &[], &cmds, &[]).unwrap();
+    assert_ne!(poses[0].root_position, poses[59].root_position);
+    // Issue 4's RAM budget holds for the controller firmware too.
+    assert!(report.ram.total() <= RAM_BUDGET, "{}", report.render());
+    println!("{}", report.render());
+}
+
+fn phasegate_script(name: &str) -> crate::rollout::Script {
+    crate::rollout::Script::builtin(name).unwrap()
+}
+
+#[test]
+fn controller_with_styles_switched_and_blended_is_bit_exact() {
+    let name = "controller_with_styles_switched_and_blended_is_bit_exact";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    let Some(blob) = golden_or_skip(name) else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let paths: Vec<PathBuf> = synthetic::default_model_styles()
+        .unwrap()
+        .into_iter()
+        .enumerate()
+        .map(|(i, b)| {
+            let p = dir.path().join(format!("s{i}.style"));
+            std::fs::write(&p, b).unwrap();
+            p
+        })
+        .collect();
+    // Every step of `cycle` (base, 0, 1, blends at 0 .. 1) twice, one frame each.
+    let mix: MixSpec = "cycle:1".parse().unwrap();
+    let frames = 16;
+    let report = controller::run(&controller::ControllerArgs {
+        model: &blob,
+        script: "zigzag",
+        frames: Some(frames),
+        styles: &paths,
+        mix: Some(mix.clone()),
+    })
+    .unwrap();
+    assert!(report.bit_exact());
+    let labels: Vec<&str> = report.mix_groups.iter().map(|g| g.label.as_str()).collect();
+    assert_eq!(labels, ["base", "style 0", "style 1", "blend 0 -> 1"]);
+    // The styles change the poses (else the comparison would prove little).
+    let bytes = std::fs::read(&blob).unwrap();
+    let files: Vec<StyleFile> = paths.iter().map(|p| StyleFile::read(p).unwrap()).collect();
+    let cmds = controller::script_commands(&phasegate_script("zigzag"), frames);
+    let styled = controller::host_poses(
+        Model::from_bytes(&bytes).unwrap(),
+        &files,
+        &cmds,
+        &mix.schedule(frames),
+    )
+    .unwrap();
+    let plain =
+        controller::host_poses(Model::from_bytes(&bytes).unwrap(), &files, &cmds, &[]).unwrap();
+    assert_eq!(styled[0], plain[0], "frame 0 uses the base in both");
+    assert_ne!(styled[frames - 1], plain[frames - 1]);
+}
+
+#[test]
+fn controller_refuses_non_pfnn_models_and_bad_commands() {
+    use phasegate::controller::Command;
+    let name = "controller_refuses_non_pfnn_models_and_bad_commands";
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("small.blob");
+    std::fs::write(&path, synthetic_blob(24, 64, 9, 3)).unwrap();
+    // On the host, before QEMU: one line naming the shape.
+    let err = controller::execute(&controller::ControllerArgs {
+        model: &path,
+        script: "walk",
+        frames: Some(4),
+        styles: &[],
+        mix: None,
+    })
+    .unwrap_err();
+    let msg = format!("{err:#}");
+    assert!(
+        msg.contains("24 inputs and 9 outputs") && msg.contains("342 and 311"),
+        "{msg}"
+    );
+    assert!(!msg.contains('\n'), "{msg}");
+    if !qemu_or_skip(name) {
+        return;
+    }
+    let Some(golden) = golden_or_skip(name) else {
+        return;
+    };
+    let cmds = controller::script_commands(&phasegate_script("walk"), 3);
+    let base = [wire::encode_mix(Mix::Base); 3];
+    let image = controller::controller_image(&cmds, &base);
+    // On the firmware: the runtime's NotPfnn, its own exit code.
+    let elf_path = build_controller_firmware().unwrap();
+    let elf = ElfInfo::read(&elf_path).unwrap();
+    let t = Duration::from_secs(60);
+    let booted = boot(&elf, &elf_path, Some(&path), None, Some(&image), t).unwrap();
+    assert_eq!(
+        booted.run.exit_code,
+        wire::exit::NOT_PFNN,
+        "{:?}",
+        booted.log
+    );
+    let last = booted.log.last().cloned().unwrap_or_default();
+    assert!(
+        last.contains("NotPfnn { inputs: 24, outputs: 9 }") && last.contains("342 and 311"),
+        "{last}"
+    );
+    // A NaN command stops the run at its frame with BadCommand.
+    let mut bad = cmds.clone();
+    bad[2] = Command {
+        velocity: [0.0, f32::NAN],
+        ..cmds[2]
+    };
+    let image_bad = controller::controller_image(&bad, &base);
+    let booted = boot(&elf, &elf_path, Some(&golden), None, Some(&image_bad), t).unwrap();
+    assert_eq!(
+        booted.run.exit_code,
+        wire::exit::FRAME_ERROR,
+        "{:?}",
+        booted.log
+    );
+    let last = booted.log.last().cloned().unwrap_or_default();
+    assert!(last.contains("frame 2: BadCommand { field: 1 }"), "{last}");
+    let file = booted.run.output_file.unwrap_or_default();
+    assert_eq!(file.len(), wire::HEADER_LEN + 2 * wire::POSE_RECORD_LEN);
+    // The inference firmware has no controller: refused, not misread.
+    let inf_path = build_firmware().unwrap();
+    let inf = ElfInfo::read(&inf_path).unwrap();
+    let booted = boot(&inf, &inf_path, Some(&golden), None, Some(&image), t).unwrap();
+    assert_eq!(
+        booted.run.exit_code,
+        wire::exit::NO_CONTROLLER,
+        "{:?}",
+        booted.log
+    );
 }
