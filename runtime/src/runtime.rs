@@ -67,10 +67,7 @@ impl<'a, const W: usize> Runtime<'a, W> {
         } = self;
         *clipped = quantise_into(model, input, a)?;
         let q = forward(model, a, b, phase)?;
-        for ((o, &v), (scale, offset)) in output.iter_mut().zip(q).zip(model.output_stage()) {
-            *o = f32::from(v) * scale + offset;
-        }
-        Ok(())
+        dequantise_into(model, q, output)
     }
 
     /// How many inputs of the last `run` fell outside the range the blob
@@ -89,12 +86,7 @@ impl<'a, const W: usize> Runtime<'a, W> {
 
     /// De-quantises the i16 outputs of [`Runtime::run_quantised`].
     pub fn dequantise_output(&self, q: &[i16], out: &mut [f32]) -> Result<()> {
-        check_len(self.model.output_dim(), q.len())?;
-        check_len(self.model.output_dim(), out.len())?;
-        for ((o, &v), (scale, offset)) in out.iter_mut().zip(q).zip(self.model.output_stage()) {
-            *o = f32::from(v) * scale + offset;
-        }
-        Ok(())
+        dequantise_into(&self.model, q, out)
     }
 
     fn forward(&mut self, phase: Phase) -> Result<&[i16]> {
@@ -159,6 +151,17 @@ fn round_to_i16(v: f32) -> i16 {
 }
 
 /// Quantises `input` into `out`; returns how many values were clipped.
+/// The output stage: `y = q * scale + offset` in IEEE f32, one formula for
+/// every runtime's `run` and `dequantise_output`.
+pub(crate) fn dequantise_into(model: &Model<'_>, q: &[i16], out: &mut [f32]) -> Result<()> {
+    check_len(model.output_dim(), q.len())?;
+    check_len(model.output_dim(), out.len())?;
+    for ((o, &v), (scale, offset)) in out.iter_mut().zip(q).zip(model.output_stage()) {
+        *o = f32::from(v) * scale + offset;
+    }
+    Ok(())
+}
+
 pub(crate) fn quantise_into(model: &Model<'_>, input: &[f32], out: &mut [i16]) -> Result<u32> {
     check_len(model.input_dim(), input.len())?;
     let capacity = out.len();

@@ -353,32 +353,13 @@ impl ControllerReport {
                 );
             }
         }
-        let _ = writeln!(
-            s,
-            "  (SysTick under -icount shift=0: 1 tick = {INSTRUCTIONS_PER_TICK} instructions; calibration loop of {} instructions took {} ticks)",
-            self.calibration.1, self.calibration.0
+        s += &super::memory_lines(
+            "controller firmware ",
+            self.calibration,
+            &self.flash,
+            &self.ram,
         );
-        let fl = self.flash;
-        let _ = writeln!(
-            s,
-            "controller firmware flash: .text {} B, .rodata {} B, vector table {} B, .data image {} B; total {} B",
-            fl.text,
-            fl.rodata,
-            fl.vector_table,
-            fl.data_load,
-            fl.total()
-        );
-        let r = self.ram;
-        let _ = writeln!(
-            s,
-            "controller firmware RAM: .data {} B, .bss {} B, .uninit {} B, stack high-water {} B (of {} B); total {} B",
-            r.data,
-            r.bss,
-            r.uninit,
-            r.stack_high_water,
-            r.stack_size,
-            r.total()
-        );
+        let (fl, r) = (self.flash, self.ram);
         let _ = writeln!(
             s,
             "inference firmware (no controller feature): .text {} B, .bss {} B; the controller adds {} B of .text and {} B of .bss",
@@ -497,13 +478,7 @@ pub fn execute(args: &ControllerArgs<'_>) -> Result<ControllerReport> {
         .context("the firmware wrote no output file")?;
     let out = parse_pose_file(file, frames, input_crc)?;
     let t = out.trailer;
-    ensure!(
-        u64::from(t.calib_ticks) * INSTRUCTIONS_PER_TICK >= u64::from(t.calib_instructions)
-            && u64::from(t.calib_ticks) * INSTRUCTIONS_PER_TICK <= u64::from(t.calib_instructions) + 2 * INSTRUCTIONS_PER_TICK,
-        "SysTick calibration: {} instructions took {} ticks: QEMU is not counting instructions (-icount shift=0)",
-        t.calib_instructions,
-        t.calib_ticks
-    );
+    super::check_calibration(&t)?;
     let (mismatches, first_mismatches) = compare_poses(&host, &out.poses);
     let step: Vec<u64> = out
         .step_ticks

@@ -163,6 +163,47 @@ pub struct RamUse {
     pub stack_size: u64,
 }
 
+/// Refuses a run whose calibration loop did not take one tick per 40
+/// instructions: QEMU was not counting instructions, so no figure holds.
+pub(crate) fn check_calibration(t: &wire::Trailer) -> Result<()> {
+    let ticks = u64::from(t.calib_ticks) * INSTRUCTIONS_PER_TICK;
+    let want = u64::from(t.calib_instructions);
+    ensure!(
+        ticks >= want && ticks <= want + 2 * INSTRUCTIONS_PER_TICK,
+        "SysTick calibration: {} instructions took {} ticks, expected {}: QEMU is not counting instructions (-icount shift=0)",
+        t.calib_instructions,
+        t.calib_ticks,
+        t.calib_instructions / INSTRUCTIONS_PER_TICK as u32
+    );
+    Ok(())
+}
+
+/// The report lines every target run ends with: how ticks become
+/// instructions, then flash and RAM use, each line starting with `prefix`.
+pub(crate) fn memory_lines(
+    prefix: &str,
+    (calib_ticks, calib_instructions): (u32, u32),
+    fl: &FlashUse,
+    r: &RamUse,
+) -> String {
+    format!(
+        "  (SysTick under -icount shift=0: 1 tick = {INSTRUCTIONS_PER_TICK} instructions; calibration loop of {calib_instructions} instructions took {calib_ticks} ticks)\n\
+         {prefix}flash: .text {} B, .rodata {} B, vector table {} B, .data image {} B; total {} B\n\
+         {prefix}RAM: .data {} B, .bss {} B, .uninit {} B, stack high-water {} B (of {} B); total {} B\n",
+        fl.text,
+        fl.rodata,
+        fl.vector_table,
+        fl.data_load,
+        fl.total(),
+        r.data,
+        r.bss,
+        r.uninit,
+        r.stack_high_water,
+        r.stack_size,
+        r.total()
+    )
+}
+
 impl RamUse {
     /// Statics.
     pub fn statics(&self) -> u64 {
@@ -416,32 +457,7 @@ impl TargetReport {
                 );
             }
         }
-        let _ = writeln!(
-            s,
-            "  (SysTick under -icount shift=0: 1 tick = {INSTRUCTIONS_PER_TICK} instructions; calibration loop of {} instructions took {} ticks)",
-            self.calibration.1, self.calibration.0
-        );
-        let fl = self.flash;
-        let _ = writeln!(
-            s,
-            "flash: .text {} B, .rodata {} B, vector table {} B, .data image {} B; total {} B",
-            fl.text,
-            fl.rodata,
-            fl.vector_table,
-            fl.data_load,
-            fl.total()
-        );
-        let r = self.ram;
-        let _ = writeln!(
-            s,
-            "RAM: .data {} B, .bss {} B, .uninit {} B, stack high-water {} B (of {} B); total {} B",
-            r.data,
-            r.bss,
-            r.uninit,
-            r.stack_high_water,
-            r.stack_size,
-            r.total()
-        );
+        s += &memory_lines("", self.calibration, &self.flash, &self.ram);
         let budget = match self.check_budgets() {
             Ok(()) => "ok".to_string(),
             Err(e) => format!("FAILED: {e}"),
@@ -449,9 +465,9 @@ impl TargetReport {
         let _ = writeln!(
             s,
             "budgets: static RAM + stack {} B <= {} B, .text {} B <= {} B: {budget}",
-            r.total(),
+            self.ram.total(),
             RAM_BUDGET,
-            fl.text,
+            self.flash.text,
             TEXT_BUDGET
         );
         let _ = writeln!(s, "QEMU wall time: {:.2} s", self.wall.as_secs_f64());
@@ -531,32 +547,39 @@ pub fn boot(
             addr: elf.model.0,
         });
     }
-    if let Some(img) = styles {
-        let room = elf.styles.1 - elf.styles.0;
+    // The images host-sim writes: what, its file name, its region, and what
+    // to say when it does not fit.
+    let images = [
+        (
+            styles,
+            "styles.bin",
+            elf.styles,
+            "the style blobs take",
+            "STYLES",
+            "",
+        ),
+        (
+            image,
+            "inputs.bin",
+            elf.hostio,
+            "the input image is",
+            "HOSTIO",
+            ": run fewer frames",
+        ),
+    ];
+    for (img, name, (start, end), what, region, hint) in images {
+        let Some(img) = img else { continue };
+        let room = end - start;
         ensure!(
             img.len() as u64 <= room,
-            "the style blobs take {} bytes, the STYLES region (memory.x) holds {room} bytes",
+            "{what} {} bytes, the {region} region (memory.x) holds {room} bytes{hint}",
             img.len()
         );
-        let path = scratch.path().join("styles.bin");
-        std::fs::write(&path, img).context("cannot write the styles image")?;
+        let path = scratch.path().join(name);
+        std::fs::write(&path, img).with_context(|| format!("cannot write {name}"))?;
         loads.push(qemu::Load {
             file: path,
-            addr: elf.styles.0,
-        });
-    }
-    if let Some(img) = image {
-        let room = elf.hostio.1 - elf.hostio.0;
-        ensure!(
-            img.len() as u64 <= room,
-            "the input image is {} bytes, the HOSTIO region (memory.x) holds {room} bytes: run fewer frames",
-            img.len()
-        );
-        let path = scratch.path().join("inputs.bin");
-        std::fs::write(&path, img).context("cannot write the input image")?;
-        loads.push(qemu::Load {
-            file: path,
-            addr: elf.hostio.0,
+            addr: start,
         });
     }
     let run = qemu::run(elf_path, &loads, timeout)?;
@@ -774,14 +797,7 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         .context("the firmware wrote no output file")?;
     let out = parse_outputs(file, frames.len(), output_dim, input_crc)?;
     let t = out.trailer;
-    ensure!(
-        u64::from(t.calib_ticks) * INSTRUCTIONS_PER_TICK >= u64::from(t.calib_instructions)
-            && u64::from(t.calib_ticks) * INSTRUCTIONS_PER_TICK <= u64::from(t.calib_instructions) + 2 * INSTRUCTIONS_PER_TICK,
-        "SysTick calibration: {} instructions took {} ticks, expected {}: QEMU is not counting instructions (-icount shift=0)",
-        t.calib_instructions,
-        t.calib_ticks,
-        t.calib_instructions / INSTRUCTIONS_PER_TICK as u32
-    );
+    check_calibration(&t)?;
 
     let mut mismatches = 0;
     let mut first_mismatches = Vec::new();

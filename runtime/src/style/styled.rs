@@ -9,7 +9,7 @@ use crate::fixed::gate::{Gate, ONE};
 use crate::fixed::phase::Phase;
 use crate::fixed::{round_shift, sat_i16};
 use crate::model::Model;
-use crate::runtime::{check_len, quantise_into};
+use crate::runtime::{check_len, dequantise_into, quantise_into};
 use crate::style::Style;
 
 /// Handle of a style in a [`StyledRuntime`]'s bank.
@@ -181,13 +181,9 @@ impl<'a, const W: usize, const S: usize, const N: usize> StyledRuntime<'a, W, S,
     /// Float in, float out, with the current mix (see [`crate::Runtime::run`]).
     pub fn run(&mut self, phase: Phase, input: &[f32], output: &mut [f32]) -> Result<()> {
         check_len(self.model.output_dim(), output.len())?;
-        let model = self.model.clone();
-        quantise_into(&model, input, &mut self.a)?;
-        let q = self.forward(phase)?;
-        for ((o, &v), (scale, offset)) in output.iter_mut().zip(q).zip(model.output_stage()) {
-            *o = f32::from(v) * scale + offset;
-        }
-        Ok(())
+        quantise_into(&self.model, input, &mut self.a)?;
+        let in_a = self.forward(phase)?;
+        dequantise_into(&self.model, self.output(in_a)?, output)
     }
 
     /// Integer-only inference with the current mix (see
@@ -200,7 +196,8 @@ impl<'a, const W: usize, const S: usize, const N: usize> StyledRuntime<'a, W, S,
             capacity: W as u32,
         })?;
         dst.copy_from_slice(input_q);
-        self.forward(phase)
+        let in_a = self.forward(phase)?;
+        self.output(in_a)
     }
 
     /// The quantised input for `input` (model units).
@@ -212,19 +209,28 @@ impl<'a, const W: usize, const S: usize, const N: usize> StyledRuntime<'a, W, S,
     /// `y = q * scale + offset` in IEEE f32, as `run` and
     /// `Runtime::dequantise_output` compute it.
     pub fn dequantise_output(&self, q: &[i16], out: &mut [f32]) -> Result<()> {
-        check_len(self.model.output_dim(), q.len())?;
-        check_len(self.model.output_dim(), out.len())?;
-        for ((o, &v), (scale, offset)) in out.iter_mut().zip(q).zip(self.model.output_stage()) {
-            *o = f32::from(v) * scale + offset;
-        }
-        Ok(())
+        dequantise_into(&self.model, q, out)
     }
 
-    fn forward(&mut self, phase: Phase) -> Result<&[i16]> {
+    /// The output rows, in buffer `a` when `in_a`, else in `b`.
+    fn output(&self, in_a: bool) -> Result<&[i16]> {
+        let n = self.model.output_dim();
+        let buf = if in_a { &self.a } else { &self.b };
+        buf.get(..n).ok_or(Error::BufferTooSmall {
+            needed: n as u32,
+            capacity: W as u32,
+        })
+    }
+
+    /// Runs every layer from the quantised input in `a`, ping-ponging with
+    /// `b`; returns whether the output ended in `a` (read it with
+    /// [`Self::output`], so `run` can de-quantise without copying the model).
+    fn forward(&mut self, phase: Phase) -> Result<bool> {
         let gate = self.model.gate(phase);
         let weights = self.mix.weights();
         let mut src = &mut self.a;
         let mut dst = &mut self.b;
+        let mut in_a = true;
         for i in 0..self.model.layer_count() {
             let layer = self
                 .model
@@ -246,6 +252,7 @@ impl<'a, const W: usize, const S: usize, const N: usize> StyledRuntime<'a, W, S,
             if !styled {
                 if layer.run_pingpong(&g, &mut src[..], &mut dst[..])? {
                     core::mem::swap(&mut src, &mut dst);
+                    in_a = !in_a;
                 }
                 continue;
             }
@@ -253,6 +260,7 @@ impl<'a, const W: usize, const S: usize, const N: usize> StyledRuntime<'a, W, S,
             let plain = layer.with_activation(Activation::Identity);
             if plain.run_pingpong(&g, &mut src[..], &mut dst[..])? {
                 core::mem::swap(&mut src, &mut dst);
+                in_a = !in_a;
             }
             let out = usize::from(layer.desc().out_dim);
             let y = src.get_mut(..out).ok_or(Error::BufferTooSmall {
@@ -271,11 +279,7 @@ impl<'a, const W: usize, const S: usize, const N: usize> StyledRuntime<'a, W, S,
                 };
             }
         }
-        let n = self.model.output_dim();
-        src.get(..n).ok_or(Error::BufferTooSmall {
-            needed: n as u32,
-            capacity: W as u32,
-        })
+        Ok(in_a)
     }
 }
 
