@@ -25,8 +25,14 @@ pub mod blob;
 pub mod controller;
 mod error;
 pub mod fixed;
-pub mod kernels;
+/// The former name of [`ops`], kept so existing imports
+/// (`phasegate::kernels::cp::{gate_l1_max, MidRecord}`) still resolve.
+pub mod kernels {
+    pub use crate::ops::diagonal as diag;
+    pub use crate::ops::{cp, dense, diagonal};
+}
 mod model;
+pub mod ops;
 mod runtime;
 pub mod style;
 

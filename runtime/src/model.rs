@@ -1,16 +1,13 @@
 //! `Model`: a validated, zero-copy view of a blob.
 
 use crate::blob::records::stage_record;
-use crate::blob::{
-    AccWidth, Activation, Framed, Gating, Header, LayerDesc, LayerOp, ModelKind, Requant, Section,
-    REQUANT_RECORD_LEN, STAGE_RECORD_LEN,
-};
+use crate::blob::{Framed, Gating, Header, LayerDesc, ModelKind, Section, STAGE_RECORD_LEN};
 use crate::error::{Error, Result};
 use crate::fixed::gate::Gate;
 use crate::fixed::phase::Phase;
-use crate::kernels::cp::MID_RECORD_LEN;
-use crate::kernels::dense::DenseLayer;
-use crate::kernels::layer::Kernel;
+use crate::ops::common::{check_section, section};
+use crate::ops::dense::DenseLayer;
+use crate::ops::{GatedOp, Layer};
 
 /// Layer index used in errors about the input and output stages.
 pub const STAGE: u8 = 255;
@@ -98,23 +95,15 @@ impl<'a> Model<'a> {
     /// Dense layer `i` with its sections (`None` for other ops: see
     /// [`Model::kernel`]).
     pub fn layer(&self, i: usize) -> Option<DenseLayer<'a>> {
-        let desc = *self.header.layers.get(i)?;
-        if desc.op != LayerOp::Dense {
-            return None;
+        match self.kernel(i)? {
+            Layer::Dense(d) => Some(d),
+            _ => None,
         }
-        Some(DenseLayer {
-            desc,
-            weights: section(self.payload, desc.weight_section)?,
-            bias: section(self.payload, desc.bias_section)?,
-            requant: section(self.payload, desc.requant_section)?,
-            index: i as u8,
-        })
     }
 
-    /// Layer `i` of any op (dense, CP, diagonal), ready to run.
-    pub fn kernel(&self, i: usize) -> Option<Kernel<'a>> {
-        let desc = *self.header.layers.get(i)?;
-        Kernel::new(self.payload, desc, i as u8)
+    /// Layer `i` of any op, bound to its sections, ready to run.
+    pub fn kernel(&self, i: usize) -> Option<Layer<'a>> {
+        Layer::new(self.payload, *self.header.layers.get(i)?, i as u8)
     }
 
     /// The payload bytes (CRC verified).
@@ -156,7 +145,7 @@ impl<'a> Model<'a> {
             if l.experts != want {
                 return Err(Error::GatingMismatch { layer: li });
             }
-            validate_sections(self.payload, li, l)?;
+            Layer::bind(self.payload, *l, li)?;
             width = l.out_dim;
         }
         if width != h.output_dim {
@@ -172,7 +161,7 @@ impl<'a> Model<'a> {
             return Err(Error::HeaderInconsistent);
         }
         for (i, l) in h.layers.iter().enumerate() {
-            validate_values(self.payload, &h.gating, l, i as u8)?;
+            Layer::bind(self.payload, *l, i as u8)?.check(&h.gating)?;
         }
         Ok(())
     }
@@ -189,121 +178,6 @@ impl<'a> Model<'a> {
     }
 }
 
-/// Checks that every section of layer `l` lies in the payload, is aligned
-/// and has the length its dimensions imply.
-pub(crate) fn validate_sections(payload: &[u8], li: u8, l: &LayerDesc) -> Result<()> {
-    let experts = u64::from(l.experts);
-    let (out, inp) = (u64::from(l.out_dim), u64::from(l.in_dim));
-    let wb = l.weights.bytes() as u64;
-    let common = [
-        (l.bias_section, experts * out * l.acc.bytes() as u64),
-        (l.requant_section, out * REQUANT_RECORD_LEN as u64),
-    ];
-    let check = |list: &[(Section, u64)]| -> Result<()> {
-        for &(s, len) in list {
-            check_section(payload, s, li)?;
-            if u64::from(s.len) != len {
-                return Err(Error::SectionLength { layer: li });
-            }
-        }
-        Ok(())
-    };
-    match l.op {
-        LayerOp::Dense => {
-            check(&[(l.weight_section, experts * out * inp * wb)])?;
-        }
-        LayerOp::Cp {
-            rank,
-            a,
-            cores,
-            mid,
-        } => {
-            if rank == 0 {
-                return Err(Error::UnsupportedParameter { layer: li });
-            }
-            let r = u64::from(rank);
-            check(&[
-                (l.weight_section, r * inp * wb),
-                (a, out * r * wb),
-                (cores, experts * r * 2),
-                (mid, r * MID_RECORD_LEN as u64),
-            ])?;
-        }
-        LayerOp::Diagonal => {
-            if l.in_dim != l.out_dim {
-                return Err(Error::DimensionMismatch { layer: li });
-            }
-            check(&[(l.weight_section, experts * out * wb)])?;
-        }
-    }
-    check(&common)
-}
-
-/// Value checks of a layer: requantisation records in range, and the
-/// overflow proof. Dense layers with 32-bit accumulators: `sum |w| * 2^15
-/// <= i32::MAX` for every row (activations are i16, so |x| <= 2^15 whatever
-/// the input); CP layers: see [`crate::kernels::cp::CpLayer::check`];
-/// diagonal layers need none (`|w x| <= 2^30`).
-pub(crate) fn validate_values(
-    payload: &[u8],
-    gating: &Gating,
-    l: &LayerDesc,
-    li: u8,
-) -> Result<()> {
-    let kernel = Kernel::new(payload, *l, li).ok_or(Error::SectionOutOfBounds { layer: li })?;
-    match kernel {
-        Kernel::Cp(cp) => cp.check(gating),
-        Kernel::Diagonal(d) => check_requant(d.requant, l.activation, li),
-        Kernel::Dense(d) => {
-            check_requant(d.requant, l.activation, li)?;
-            if l.acc != AccWidth::I32 {
-                return Ok(());
-            }
-            let rows = usize::from(l.experts) * usize::from(l.out_dim);
-            for r in 0..rows {
-                let l1 = row_l1(&d, r).ok_or(Error::SectionLength { layer: li })?;
-                if l1 << 15 > i32::MAX as u64 {
-                    let row = (r % usize::from(l.out_dim.max(1))) as u16;
-                    return Err(Error::AccumulatorOverflow { layer: li, row });
-                }
-            }
-            Ok(())
-        }
-    }
-}
-
-/// Requantisation records in range: reserved byte zero, shifts at most
-/// [`Requant::MAX_SHIFT`], ELU formats at most Q15.
-fn check_requant(requant: &[u8], activation: Activation, li: u8) -> Result<()> {
-    for rec in requant.as_chunks::<REQUANT_RECORD_LEN>().0 {
-        let r = Requant::from_bytes(rec).ok_or(Error::UnsupportedParameter { layer: li })?;
-        let elu_frac_bad = activation == Activation::Elu && r.frac > 15;
-        if r.pre_shift > Requant::MAX_SHIFT || r.post_shift > Requant::MAX_SHIFT || elu_frac_bad {
-            return Err(Error::UnsupportedParameter { layer: li });
-        }
-    }
-    Ok(())
-}
-
-/// `sum |w|` of flat row `r` (expert-major).
-fn row_l1(layer: &DenseLayer<'_>, r: usize) -> Option<u64> {
-    let wb = layer.desc.weights.bytes();
-    let rb = usize::from(layer.desc.in_dim) * wb;
-    let row = layer.weights.get(r * rb..(r + 1) * rb)?;
-    Some(match wb {
-        1 => row
-            .iter()
-            .map(|&b| u64::from((b as i8).unsigned_abs()))
-            .sum(),
-        _ => row
-            .as_chunks::<2>()
-            .0
-            .iter()
-            .map(|c| u64::from(i16::from_le_bytes(*c).unsigned_abs()))
-            .sum(),
-    })
-}
-
 pub(crate) fn validate_gating(g: &Gating) -> Result<u16> {
     let ok = match *g {
         Gating::Single => true,
@@ -317,17 +191,6 @@ pub(crate) fn validate_gating(g: &Gating) -> Result<u16> {
     }
 }
 
-fn check_section(payload: &[u8], s: Section, layer: u8) -> Result<()> {
-    match s.end() {
-        Some(end) if end as usize <= payload.len() && s.offset.is_multiple_of(4) => Ok(()),
-        _ => Err(Error::SectionOutOfBounds { layer }),
-    }
-}
-
-fn section(payload: &[u8], s: Section) -> Option<&[u8]> {
-    payload.get(s.offset as usize..s.end()? as usize)
-}
-
 fn stage(payload: &[u8], s: Section) -> impl Iterator<Item = (f32, f32)> + '_ {
     let bytes = section(payload, s).unwrap_or(&[]);
     bytes
@@ -337,18 +200,12 @@ fn stage(payload: &[u8], s: Section) -> impl Iterator<Item = (f32, f32)> + '_ {
         .map(stage_record)
 }
 
-/// Widest activation vector of the network (input included; the middle
-/// vector of a CP layer counts too).
+/// Widest activation vector of the network (input included; an op's
+/// intermediate vector, such as a CP layer's middle, counts too).
 pub fn max_width(layers: &[LayerDesc]) -> usize {
     layers
         .iter()
-        .map(|l| {
-            let rank = match l.op {
-                LayerOp::Cp { rank, .. } => rank,
-                _ => 0,
-            };
-            usize::from(l.in_dim.max(l.out_dim).max(rank))
-        })
+        .map(|l| usize::from(l.in_dim.max(l.out_dim)).max(Layer::scratch(l)))
         .max()
         .unwrap_or(0)
 }
@@ -358,20 +215,15 @@ pub fn ram_bytes(layers: &[LayerDesc]) -> usize {
     2 * max_width(layers) * core::mem::size_of::<i16>()
 }
 
-/// Multiply-accumulates per frame, summed over the layers: dense
-/// `active x in x out`; CP `rank x (in + out + active)` (the two factor
-/// products and the core blend); diagonal `active x out`.
+/// Multiply-accumulates per frame, summed over the layers ([`GatedOp::macs`]
+/// of each op: dense `active x in x out`; CP `rank x (in + out + active)`;
+/// diagonal `active x out`), `active` being 1 for ungated layers.
 pub fn macs(gating: &Gating, layers: &[LayerDesc]) -> u64 {
     layers
         .iter()
         .map(|l| {
             let active = if l.gated { gating.active() } else { 1 } as u64;
-            let (inp, out) = (u64::from(l.in_dim), u64::from(l.out_dim));
-            match l.op {
-                LayerOp::Dense => active * inp * out,
-                LayerOp::Cp { rank, .. } => u64::from(rank) * (inp + out + active),
-                LayerOp::Diagonal => active * out,
-            }
+            Layer::macs(l, active)
         })
         .sum()
 }

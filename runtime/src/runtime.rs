@@ -4,6 +4,7 @@ use crate::error::{Error, Result};
 use crate::fixed::phase::Phase;
 use crate::fixed::sat_i16;
 use crate::model::Model;
+use crate::ops::GatedOp;
 
 /// Runs a [`Model`] frame by frame. `W` is the capacity, in i16 elements, of
 /// each of its two ping-pong activation buffers; the model's need is checked

@@ -28,13 +28,13 @@ pub use styled::{Mix, StyleId, StyledRuntime};
 
 use crate::blob::{Activation, Framed, Gating, LayerDesc, ModelKind, Section, MAX_STYLE_NAME};
 use crate::error::{Error, Result};
-use crate::kernels::layer::Kernel;
-use crate::model::{macs, ram_bytes, validate_gating, validate_sections, validate_values, STAGE};
+use crate::model::{macs, ram_bytes, validate_gating, STAGE};
+use crate::ops::{GatedOp, Layer};
 
 /// A validated style blob, borrowed (its weights stay where the blob is).
 #[derive(Clone, Copy, Debug)]
 pub struct Style<'a> {
-    kernel: Kernel<'a>,
+    kernel: Layer<'a>,
     gating: Gating,
     name: &'a str,
     base_crc: u32,
@@ -90,7 +90,7 @@ impl<'a> Style<'a> {
         if desc.activation != Activation::Identity {
             return Err(Error::UnsupportedParameter { layer: 0 });
         }
-        validate_sections(payload, 0, &desc)?;
+        let kernel = Layer::bind(payload, desc, 0)?;
         let empty = Section::default();
         if (header.input_stage, header.output_stage) != (empty, empty) {
             return Err(Error::UnsupportedParameter { layer: STAGE });
@@ -101,8 +101,7 @@ impl<'a> Style<'a> {
         {
             return Err(Error::HeaderInconsistent);
         }
-        validate_values(payload, &header.gating, &desc, 0)?;
-        let kernel = Kernel::new(payload, desc, 0).ok_or(Error::SectionOutOfBounds { layer: 0 })?;
+        kernel.check(&header.gating)?;
         Ok(Style {
             kernel,
             gating: header.gating,
@@ -135,7 +134,7 @@ impl<'a> Style<'a> {
     }
 
     /// The adapter.
-    pub fn kernel(&self) -> &Kernel<'a> {
+    pub fn kernel(&self) -> &Layer<'a> {
         &self.kernel
     }
 

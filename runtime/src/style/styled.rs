@@ -9,6 +9,7 @@ use crate::fixed::gate::{Gate, ONE};
 use crate::fixed::phase::Phase;
 use crate::fixed::{round_shift, sat_i16};
 use crate::model::Model;
+use crate::ops::GatedOp;
 use crate::runtime::{check_len, dequantise_into, quantise_into};
 use crate::style::Style;
 
@@ -325,7 +326,7 @@ fn adapters(
         if let Some((style, weight)) = slot {
             let k = style.kernel();
             let g = if k.desc().gated { *gate } else { Gate::SINGLE };
-            k.run_into(&g, x, middle, buf)?;
+            k.run(&g, x, middle, buf)?;
             *w = *weight;
         }
     }

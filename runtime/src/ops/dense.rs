@@ -1,0 +1,451 @@
+//! The phase-gated dense layer: `y = act(requant(sum_k g_k (W_k x + b_k)))`.
+//!
+//! For each output row the active experts' dot products are taken in one
+//! pass over `x` (one accumulator per expert), then blended by the Q16 gate
+//! and requantised once: the blended weight matrix never exists.
+
+use super::common::{
+    check_dims, check_requant, finish_row, row_l1, too_short, too_small, Sections, I32_ROW_BOUND,
+};
+use super::GatedOp;
+use crate::blob::records::bias_at;
+use crate::blob::{AccWidth, Gating, LayerDesc, WeightFormat, REQUANT_RECORD_LEN};
+use crate::error::{Error, Result};
+use crate::fixed::gate::{Gate, MAX_ACTIVE};
+
+/// A validated layer: its descriptor and its payload sections.
+#[derive(Clone, Copy, Debug)]
+pub struct DenseLayer<'a> {
+    /// The header's description.
+    pub desc: LayerDesc,
+    /// `experts x out x in` weights.
+    pub weights: &'a [u8],
+    /// `experts x out` biases.
+    pub bias: &'a [u8],
+    /// `out` requantisation records.
+    pub requant: &'a [u8],
+    /// Position in the network, for error reports.
+    pub index: u8,
+}
+
+/// Element type of a weight row.
+trait Weight {
+    fn row(bytes: &[u8]) -> impl Iterator<Item = i32> + '_;
+}
+
+struct W8;
+struct W16;
+
+impl Weight for W8 {
+    #[inline(always)]
+    fn row(bytes: &[u8]) -> impl Iterator<Item = i32> + '_ {
+        bytes.iter().map(|&b| i32::from(b as i8))
+    }
+}
+
+impl Weight for W16 {
+    #[inline(always)]
+    fn row(bytes: &[u8]) -> impl Iterator<Item = i32> + '_ {
+        bytes
+            .as_chunks::<2>()
+            .0
+            .iter()
+            .map(|c| i32::from(i16::from_le_bytes(*c)))
+    }
+}
+
+/// A dot-product accumulator. `w * x` of an i16 weight and an i16
+/// activation always fits an i32 (|w x| <= 2^30).
+trait Acc: Copy {
+    const ZERO: Self;
+    fn mac(self, product: i32) -> Self;
+    fn widen(self) -> i64;
+}
+
+impl Acc for i32 {
+    const ZERO: Self = 0;
+    /// Cannot wrap: the loader proved `sum |w| * 2^15 <= i32::MAX` for every row.
+    #[inline(always)]
+    fn mac(self, product: i32) -> Self {
+        self.wrapping_add(product)
+    }
+    #[inline(always)]
+    fn widen(self) -> i64 {
+        i64::from(self)
+    }
+}
+
+impl Acc for i64 {
+    const ZERO: Self = 0;
+    #[inline(always)]
+    fn mac(self, product: i32) -> Self {
+        self.wrapping_add(i64::from(product))
+    }
+    #[inline(always)]
+    fn widen(self) -> i64 {
+        self
+    }
+}
+
+#[inline(always)]
+fn dot1<W: Weight, A: Acc>(r: [&[u8]; 1], x: &[i16]) -> [A; 1] {
+    let mut a = A::ZERO;
+    for (w, &v) in W::row(r[0]).zip(x) {
+        a = a.mac(w * i32::from(v));
+    }
+    [a]
+}
+
+#[inline(always)]
+fn dot2<W: Weight, A: Acc>(r: [&[u8]; 2], x: &[i16]) -> [A; 2] {
+    let (mut a0, mut a1) = (A::ZERO, A::ZERO);
+    for ((w0, w1), &v) in W::row(r[0]).zip(W::row(r[1])).zip(x) {
+        let v = i32::from(v);
+        a0 = a0.mac(w0 * v);
+        a1 = a1.mac(w1 * v);
+    }
+    [a0, a1]
+}
+
+#[inline(always)]
+fn dot4<W: Weight, A: Acc>(r: [&[u8]; 4], x: &[i16]) -> [A; 4] {
+    let (mut a0, mut a1, mut a2, mut a3) = (A::ZERO, A::ZERO, A::ZERO, A::ZERO);
+    let rows = W::row(r[0])
+        .zip(W::row(r[1]))
+        .zip(W::row(r[2]))
+        .zip(W::row(r[3]));
+    for ((((w0, w1), w2), w3), &v) in rows.zip(x) {
+        let v = i32::from(v);
+        a0 = a0.mac(w0 * v);
+        a1 = a1.mac(w1 * v);
+        a2 = a2.mac(w2 * v);
+        a3 = a3.mac(w3 * v);
+    }
+    [a0, a1, a2, a3]
+}
+
+impl<'a> DenseLayer<'a> {
+    fn row_bytes(&self) -> usize {
+        usize::from(self.desc.in_dim) * self.desc.weights.bytes()
+    }
+
+    /// Weight row `row` of expert `expert`.
+    fn row(&self, expert: u16, row: usize) -> Result<&'a [u8]> {
+        let rb = self.row_bytes();
+        let start = (usize::from(expert) * usize::from(self.desc.out_dim) + row) * rb;
+        self.weights
+            .get(start..start + rb)
+            .ok_or(Error::SectionLength { layer: self.index })
+    }
+
+    fn run_typed<W: Weight, A: Acc>(&self, gate: &Gate, x: &[i16], y: &mut [i16]) -> Result<()> {
+        let out = usize::from(self.desc.out_dim);
+        let n_in = usize::from(self.desc.in_dim);
+        let x = x.get(..n_in).ok_or(too_short(n_in, x.len()))?;
+        let capacity = y.len();
+        let y = y.get_mut(..out).ok_or(too_small(out, capacity))?;
+        let mut experts = [0u16; MAX_ACTIVE];
+        let mut coefs = [0i64; MAX_ACTIVE];
+        for (slot, (e, w)) in gate.iter().enumerate().take(MAX_ACTIVE) {
+            if let (Some(es), Some(cs)) = (experts.get_mut(slot), coefs.get_mut(slot)) {
+                (*es, *cs) = (e, i64::from(w));
+            }
+        }
+        let n = gate.len();
+        let bias_width = self.desc.acc.bytes();
+        let records = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
+        for (i, (yi, rec)) in y.iter_mut().zip(records).enumerate() {
+            let [e0, e1, e2, e3] = experts;
+            let accs: [i64; MAX_ACTIVE] = match n {
+                1 => {
+                    let [a] = dot1::<W, A>([self.row(e0, i)?], x);
+                    [a.widen(), 0, 0, 0]
+                }
+                2 => {
+                    let [a, b] = dot2::<W, A>([self.row(e0, i)?, self.row(e1, i)?], x);
+                    [a.widen(), b.widen(), 0, 0]
+                }
+                _ => {
+                    let rows = [
+                        self.row(e0, i)?,
+                        self.row(e1, i)?,
+                        self.row(e2, i)?,
+                        self.row(e3, i)?,
+                    ];
+                    dot4::<W, A>(rows, x).map(Acc::widen)
+                }
+            };
+            let mut total = 0i64;
+            for ((&e, &g), &acc) in experts.iter().zip(&coefs).zip(&accs).take(n) {
+                let b = bias_at(self.bias, bias_width, usize::from(e) * out + i).unwrap_or(0);
+                total = total.saturating_add(acc.saturating_add(b).saturating_mul(g));
+            }
+            *yi = finish_row(total, rec, self.desc.activation);
+        }
+        Ok(())
+    }
+}
+
+impl<'a> GatedOp<'a> for DenseLayer<'a> {
+    /// `active x in x out`.
+    fn macs(desc: &LayerDesc, active: u64) -> u64 {
+        active * u64::from(desc.in_dim) * u64::from(desc.out_dim)
+    }
+
+    /// `weight_section`: `experts x out x in` weights; then biases and
+    /// records.
+    fn bind(payload: &'a [u8], desc: LayerDesc, index: u8) -> Result<Self> {
+        check_dims(&desc, index)?;
+        let s = Sections::new(payload, index);
+        let weights = s.get(
+            desc.weight_section,
+            u64::from(desc.experts)
+                * u64::from(desc.out_dim)
+                * u64::from(desc.in_dim)
+                * desc.weights.bytes() as u64,
+        )?;
+        let (bias, requant) = s.rows(&desc)?;
+        Ok(DenseLayer {
+            desc,
+            weights,
+            bias,
+            requant,
+            index,
+        })
+    }
+
+    /// Records in range; with 32-bit accumulators, for every row of every
+    /// expert (in storage order) `sum_j |w_j| * 2^15 <= i32::MAX`, so no
+    /// partial sum of any i16 input wraps (`AccumulatorOverflow { row }`).
+    /// With 64-bit accumulators `|acc| < 65535 * 2^15 * 2^15 < 2^47`: no
+    /// proof needed. The blend saturates rather than wraps, so biases need
+    /// no proof for safety (the exporter proves they never saturate).
+    fn check(&self, _gating: &Gating) -> Result<()> {
+        let li = self.index;
+        check_requant(self.requant, self.desc.activation, li)?;
+        if self.desc.acc != AccWidth::I32 {
+            return Ok(());
+        }
+        let out = usize::from(self.desc.out_dim).max(1);
+        for (r, row) in self
+            .weights
+            .chunks_exact(self.row_bytes().max(1))
+            .enumerate()
+        {
+            if row_l1(row, self.desc.weights) << 15 > I32_ROW_BOUND {
+                let row = (r % out) as u16;
+                return Err(Error::AccumulatorOverflow { layer: li, row });
+            }
+        }
+        Ok(())
+    }
+
+    fn desc(&self) -> &LayerDesc {
+        &self.desc
+    }
+
+    fn desc_mut(&mut self) -> &mut LayerDesc {
+        &mut self.desc
+    }
+
+    fn requant(&self) -> &'a [u8] {
+        self.requant
+    }
+
+    /// One pass over `x` per output row; no scratch.
+    fn run(&self, gate: &Gate, x: &[i16], _scratch: &mut [i16], y: &mut [i16]) -> Result<()> {
+        match (self.desc.weights, self.desc.acc) {
+            (WeightFormat::I8, AccWidth::I32) => self.run_typed::<W8, i32>(gate, x, y),
+            (WeightFormat::I8, AccWidth::I64) => self.run_typed::<W8, i64>(gate, x, y),
+            (WeightFormat::I16, AccWidth::I32) => self.run_typed::<W16, i32>(gate, x, y),
+            (WeightFormat::I16, AccWidth::I64) => self.run_typed::<W16, i64>(gate, x, y),
+        }
+    }
+}
+
+/// The dense op's side of the test contract (`ops::contract`).
+#[cfg(test)]
+pub(crate) mod case {
+    use super::DenseLayer;
+    use crate::blob::{AccWidth, Gating, LayerDesc, LayerOp, WeightFormat};
+    use crate::error::Error;
+    use crate::ops::contract::{
+        finish, finish_float, fit_i32_rows, fits, sat, OpCase, Payload, Rng, Rows, Shape,
+    };
+
+    /// A dense layer as plain integers.
+    #[derive(Clone, Debug)]
+    pub(crate) struct Dense {
+        rows: Rows,
+        /// `experts x out x in`, expert-major then row-major.
+        w: Vec<i32>,
+    }
+
+    impl Dense {
+        fn row(&self, k: usize, i: usize) -> &[i32] {
+            let s = self.rows.shape;
+            &self.w[(k * s.out_dim + i) * s.in_dim..][..s.in_dim]
+        }
+
+        /// `sum_j w[k][i][j] x[j]`, exactly.
+        fn acc(&self, k: usize, i: usize, x: &[i16]) -> i128 {
+            self.row(k, i)
+                .iter()
+                .zip(x)
+                .map(|(&w, &v)| i128::from(w) * i128::from(v))
+                .sum()
+        }
+
+        /// The blend `sum_k g_k (acc_k + b_k)` with the documented
+        /// saturations (in gate order), and whether any acted.
+        fn total(&self, g: &[(usize, i128)], i: usize, x: &[i16]) -> (i128, bool) {
+            let (mut total, mut exact) = (0i128, true);
+            for &(k, gk) in g {
+                let v = self.acc(k, i, x) + self.rows.bias(k, i);
+                let term = sat(sat(v, 64) * gk, 64);
+                exact &= fits(v, 64) && fits(v * gk, 64) && fits(total + term, 64);
+                total = sat(total + term, 64);
+            }
+            (total, exact)
+        }
+    }
+
+    impl OpCase for Dense {
+        type Op<'a> = DenseLayer<'a>;
+
+        fn random(rng: &mut Rng, shape: Shape, _gating: Gating) -> Self {
+            let mut w = shape.weights(rng, shape.experts * shape.out_dim * shape.in_dim);
+            if shape.acc == AccWidth::I32 && rng.chance(90) {
+                fit_i32_rows(&mut w, shape.in_dim);
+            }
+            let bias_log2 = if rng.chance(10) { 62 } else { 44 };
+            Dense {
+                rows: Rows::random(rng, shape, bias_log2),
+                w,
+            }
+        }
+
+        fn rows(&self) -> &Rows {
+            &self.rows
+        }
+
+        fn encode(&self, p: &mut Payload) -> LayerDesc {
+            let mut d = self.rows.shape.desc(LayerOp::Dense);
+            d.weight_section = p.weights(&self.w, d.weights);
+            self.rows.encode(p, &mut d);
+            d
+        }
+
+        /// `docs/blob-format.md`, "Dense layer": for each row, the blend
+        /// of the active experts' exact dot products plus biases, saturated
+        /// to i64 in gate order, then the row's record. The proof claims
+        /// that 32-bit accumulators hold every dot product.
+        fn reference(&self, g: &[(usize, i128)], x: &[i16]) -> (Vec<i16>, bool) {
+            let s = self.rows.shape;
+            let mut claims = true;
+            let y = (0..s.out_dim)
+                .map(|i| {
+                    for &(k, _) in g {
+                        claims &= s.acc == AccWidth::I64 || fits(self.acc(k, i, x), 32);
+                    }
+                    let (total, _) = self.total(g, i, x);
+                    finish(total, &self.rows.requant[i], s.activation)
+                })
+                .collect();
+            (y, claims)
+        }
+
+        /// The blend is exact (integers times the Q16 gate), so the float
+        /// twin differs only by the requantisation and the ELU.
+        fn float(&self, g: &[(usize, i128)], x: &[i16]) -> Vec<Option<(f64, f64)>> {
+            let s = self.rows.shape;
+            (0..s.out_dim)
+                .map(|i| {
+                    let (total, exact) = self.total(g, i, x);
+                    let r = &self.rows.requant[i];
+                    exact
+                        .then(|| finish_float(total, total as f64, 0.0, r, s.activation))
+                        .flatten()
+                })
+                .collect()
+        }
+
+        /// 32-bit accumulators: every row at `sum |w| = 65535` exactly
+        /// (`[-32768, 32767]` for int16 weights, `511 x -128 + 127` for
+        /// int8), which every i16 input keeps inside i32. 64-bit: every
+        /// weight at the format's minimum. Biases at their extremes.
+        fn worst_case(rng: &mut Rng, mut shape: Shape, gating: Gating) -> (Self, Vec<Vec<i16>>) {
+            let (lo, hi) = shape.weight_range();
+            let narrow = shape.acc == AccWidth::I32;
+            let (n_min, n_hi) = match shape.weights {
+                WeightFormat::I16 => (1, 1),
+                WeightFormat::I8 => (511, 1),
+            };
+            if narrow {
+                shape.in_dim = n_min + n_hi + rng.below(3);
+            }
+            let rows = shape.experts * shape.out_dim;
+            let mut w = Vec::new();
+            for _ in 0..rows {
+                let mut row = vec![lo as i32; shape.in_dim];
+                if narrow {
+                    row[n_min..].iter_mut().for_each(|v| *v = 0);
+                    row[n_min] = hi as i32;
+                    let shift = rng.below(shape.in_dim);
+                    row.rotate_right(shift);
+                }
+                w.extend(row);
+            }
+            let mut case = Dense::random(rng, shape, gating);
+            case.w = w;
+            for b in &mut case.rows.bias {
+                *b = match (shape.acc, rng.chance(50)) {
+                    (AccWidth::I32, true) => i32::MAX.into(),
+                    (AccWidth::I32, false) => i32::MIN.into(),
+                    (AccWidth::I64, true) => i64::MAX,
+                    (AccWidth::I64, false) => i64::MIN,
+                };
+            }
+            // Inputs that push every row's dot product to its bound, both ways.
+            let row0 = case.row(0, 0).to_vec();
+            let push = |neg: bool| -> Vec<i16> {
+                row0.iter()
+                    .map(|&w| match (w > 0) ^ neg {
+                        _ if w == 0 => 0,
+                        true => i16::MIN,
+                        false => i16::MAX,
+                    })
+                    .collect()
+            };
+            let inputs = vec![
+                push(false),
+                push(true),
+                vec![i16::MIN; shape.in_dim],
+                rng.inputs(shape.in_dim),
+            ];
+            (case, inputs)
+        }
+
+        /// 32-bit accumulators: one row one unit past `sum |w| = 65535`.
+        fn past_the_bound(worst: &Self, _gating: Gating) -> Vec<(Self, Error)> {
+            let s = worst.rows.shape;
+            if s.acc != AccWidth::I32 {
+                return Vec::new();
+            }
+            let (lo, _) = s.weight_range();
+            let (k, i) = (s.experts - 1, s.out_dim / 2);
+            let mut twin = worst.clone();
+            let start = (k * s.out_dim + i) * s.in_dim;
+            let row = &mut twin.w[start..start + s.in_dim];
+            let Some(v) = row.iter_mut().find(|v| **v > 0) else {
+                return Vec::new();
+            };
+            *v = lo as i32;
+            let err = Error::AccumulatorOverflow {
+                layer: 0,
+                row: i as u16,
+            };
+            vec![(twin, err)]
+        }
+    }
+}

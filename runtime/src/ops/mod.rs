@@ -1,0 +1,180 @@
+//! The ops: every way a gated layer `y = act(requant(sum_k g_k (W_k x + b_k)))`
+//! can compute its products, each in one module behind one trait,
+//! [`GatedOp`]:
+//!
+//! | module | `LayerOp` | `W_k x` |
+//! |---|---|---|
+//! | [`dense`] | `Dense` | one `out x in` matrix per expert |
+//! | [`cp`] | `Cp` | `A diag(d_k) B^T x`, the matrix never formed |
+//! | [`diagonal`] | `Diagonal` | `w_k . x` (`in == out`) |
+//!
+//! An op's module holds all of it: binding its payload sections (structural
+//! checks), its value checks and overflow proof (re-derived at load from
+//! the blob's own numbers), its MAC and scratch figures, and its kernel. The
+//! output-row tail (requantisation, activation) and the record checks all
+//! ops share are in `common`. [`Layer`] is the closed set of ops the format
+//! knows, generated from one list ([`closed_set!`]); the loader
+//! ([`crate::Model`], [`crate::Style`]) and the executors
+//! ([`crate::Runtime`], [`crate::StyledRuntime`]) only go through it.
+//!
+//! Every op passes one test contract (`ops::contract`, run by
+//! `cargo test -p phasegate`): bit-exact against a plain i128 reference, the
+//! overflow proof refusing what could overflow and accepting the worst case
+//! that cannot, and a bounded fixed-vs-float error. `docs/adding-an-op.md`
+//! lists the steps to add one.
+
+pub(crate) mod common;
+pub mod cp;
+pub mod dense;
+pub mod diagonal;
+
+#[cfg(test)]
+mod contract;
+
+use crate::blob::{Activation, Gating, LayerDesc, LayerOp};
+use crate::error::Result;
+use crate::fixed::gate::Gate;
+
+pub use common::requantise;
+
+/// One op of a gated layer: load-time validation, overflow proof, cost
+/// figures and kernel. `'a` is the blob's lifetime (the op borrows its
+/// tables from the payload, which stays in flash).
+///
+/// The loader calls, for each layer, [`GatedOp::bind`] (sections), then,
+/// once the whole header is consistent, [`GatedOp::check`] (values); the
+/// executors call [`GatedOp::run_pingpong`] (or [`GatedOp::run`]) every frame.
+pub trait GatedOp<'a>: Sized {
+    /// Header only: multiply-accumulates per frame of the layer `desc`
+    /// with `active` experts in use (1 when ungated). Counted by the
+    /// header's `macs_per_frame`, which the loader recomputes.
+    fn macs(desc: &LayerDesc, active: u64) -> u64;
+
+    /// Header only: i16 elements of the intermediate vector the op keeps
+    /// between its stages (0 for a single-stage op). Counts as a width in
+    /// the header's `ram_bytes`, because [`GatedOp::run_pingpong`] keeps it
+    /// in the second buffer.
+    fn scratch(desc: &LayerDesc) -> usize {
+        let _ = desc;
+        0
+    }
+
+    /// Load, structure: binds the op's sections of `payload`, in the order
+    /// of its table in `docs/`, each in bounds, 4-aligned and of its exact
+    /// length, plus the op's shape constraints. Layer `index` is for errors.
+    fn bind(payload: &'a [u8], desc: LayerDesc, index: u8) -> Result<Self>;
+
+    /// Load, values: every record in range and the overflow proof, for any
+    /// i16 input and any gate `gating` can produce. After it succeeds a
+    /// frame can only fail on its buffers.
+    fn check(&self, gating: &Gating) -> Result<()>;
+
+    /// The layer's descriptor.
+    fn desc(&self) -> &LayerDesc;
+
+    /// The descriptor, mutably (the styled runtime swaps the activation).
+    fn desc_mut(&mut self) -> &mut LayerDesc;
+
+    /// The `out_dim` requantisation records (one per output row).
+    fn requant(&self) -> &'a [u8];
+
+    /// The kernel: `x` has `in_dim` elements, `scratch` at least
+    /// [`GatedOp::scratch`], `y` at least `out_dim`.
+    fn run(&self, gate: &Gate, x: &[i16], scratch: &mut [i16], y: &mut [i16]) -> Result<()>;
+
+    /// The kernel over two ping-pong buffers of the model's widest vector:
+    /// reads `src`; returns `true` when the output is in `dst` (swap the
+    /// buffers), `false` when it is back in `src` (a two-stage op keeps its
+    /// intermediate vector in `dst`). The default is `run(src -> dst)`.
+    fn run_pingpong(&self, gate: &Gate, src: &mut [i16], dst: &mut [i16]) -> Result<bool> {
+        self.run(gate, src, &mut [], dst).map(|()| true)
+    }
+}
+
+/// Generates [`Layer`], the closed set of ops, from one list of
+/// `Variant(Type) = pattern of LayerOp`: the enum, and its [`GatedOp`]
+/// implementation, which dispatches on the header's `LayerOp` for the
+/// header-only figures and `bind`, and on the variant for the rest. This
+/// list is the only place that maps a `LayerOp` to its module.
+macro_rules! closed_set {
+    ($( $(#[$doc:meta])* $variant:ident($ty:ident) = $pat:pat, )*) => {
+        /// A validated layer of any op, bound to its payload sections.
+        #[derive(Clone, Copy, Debug)]
+        pub enum Layer<'a> {
+            $( $(#[$doc])* $variant($ty<'a>), )*
+        }
+
+        impl<'a> GatedOp<'a> for Layer<'a> {
+            fn macs(desc: &LayerDesc, active: u64) -> u64 {
+                match desc.op { $( $pat => $ty::macs(desc, active), )* }
+            }
+            fn scratch(desc: &LayerDesc) -> usize {
+                match desc.op { $( $pat => $ty::scratch(desc), )* }
+            }
+            fn bind(payload: &'a [u8], desc: LayerDesc, index: u8) -> Result<Self> {
+                match desc.op { $( $pat => $ty::bind(payload, desc, index).map(Layer::$variant), )* }
+            }
+            fn check(&self, gating: &Gating) -> Result<()> {
+                match self { $( Layer::$variant(l) => l.check(gating), )* }
+            }
+            fn desc(&self) -> &LayerDesc {
+                match self { $( Layer::$variant(l) => l.desc(), )* }
+            }
+            fn desc_mut(&mut self) -> &mut LayerDesc {
+                match self { $( Layer::$variant(l) => l.desc_mut(), )* }
+            }
+            fn requant(&self) -> &'a [u8] {
+                match self { $( Layer::$variant(l) => l.requant(), )* }
+            }
+            fn run(&self, gate: &Gate, x: &[i16], scratch: &mut [i16], y: &mut [i16]) -> Result<()> {
+                match self { $( Layer::$variant(l) => l.run(gate, x, scratch, y), )* }
+            }
+            fn run_pingpong(&self, gate: &Gate, src: &mut [i16], dst: &mut [i16]) -> Result<bool> {
+                match self { $( Layer::$variant(l) => l.run_pingpong(gate, src, dst), )* }
+            }
+        }
+    };
+}
+
+use cp::CpLayer;
+use dense::DenseLayer;
+use diagonal::DiagLayer;
+
+closed_set! {
+    /// `LayerOp::Dense`: [`dense`].
+    Dense(DenseLayer) = LayerOp::Dense,
+    /// `LayerOp::Cp`: [`cp`].
+    Cp(CpLayer) = LayerOp::Cp { .. },
+    /// `LayerOp::Diagonal`: [`diagonal`].
+    Diagonal(DiagLayer) = LayerOp::Diagonal,
+}
+
+impl<'a> Layer<'a> {
+    /// The layer `desc` over `payload`, bound and structurally checked
+    /// ([`GatedOp::bind`]); `None` when that fails.
+    pub fn new(payload: &'a [u8], desc: LayerDesc, index: u8) -> Option<Layer<'a>> {
+        <Layer<'a> as GatedOp<'a>>::bind(payload, desc, index).ok()
+    }
+
+    /// The layer's descriptor.
+    pub fn desc(&self) -> &LayerDesc {
+        GatedOp::desc(self)
+    }
+
+    /// The requantisation records (one per output row).
+    pub fn requant(&self) -> &'a [u8] {
+        GatedOp::requant(self)
+    }
+
+    /// The same layer with another activation (the styled runtime runs the
+    /// base layer without its ELU, adds the adapter, then applies it).
+    pub fn with_activation(mut self, activation: Activation) -> Layer<'a> {
+        self.desc_mut().activation = activation;
+        self
+    }
+
+    /// Elements of scratch [`GatedOp::run`] needs.
+    pub fn scratch_elements(&self) -> usize {
+        <Layer<'a> as GatedOp<'a>>::scratch(self.desc())
+    }
+}
