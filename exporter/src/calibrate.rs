@@ -8,7 +8,9 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use std::f64::consts::TAU;
 
-use crate::float_pfnn::FloatPfnn;
+use ndarray::Array1;
+
+use crate::net::{Adapter, Net};
 
 /// Raw inputs (model units) and phases (radians).
 #[derive(Clone, Debug, Default)]
@@ -36,59 +38,68 @@ pub fn normal_inputs(mean: &[f64], std: &[f64], n: usize, scale: f64, seed: u64)
     s
 }
 
-/// Largest magnitudes the float network reached.
-#[derive(Clone, Debug, PartialEq)]
+/// Largest magnitudes and mean squares the float network reached, per
+/// layer: what the quantiser picks every format from.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Ranges {
-    /// Max |normalised input| per input column.
-    pub input: Vec<f64>,
-    /// Max |pre-activation| per layer (all rows).
-    pub layer: Vec<f64>,
     /// Max |pre-activation| per row, per layer.
     pub rows: Vec<Vec<f64>>,
+    /// Max |middle component| per CP layer.
+    pub mids: Vec<Option<Vec<f64>>>,
     /// Mean square of each layer's input columns (normalised inputs for
     /// layer 0, the previous layer's activations after).
     pub input_ms: Vec<Vec<f64>>,
+    /// Mean square of each CP layer's middle components.
+    pub mid_ms: Vec<Option<Vec<f64>>>,
 }
 
-/// Runs `net` on every sample and records the ranges.
-pub fn measure_ranges(net: &FloatPfnn, samples: &Samples) -> Ranges {
+impl Ranges {
+    /// Max |pre-activation| of layer `l` over all its rows.
+    pub fn layer_max(&self, l: usize) -> f64 {
+        self.rows
+            .get(l)
+            .map_or(0.0, |r| r.iter().copied().fold(0.0, f64::max))
+    }
+}
+
+fn ms_into(acc: &mut Vec<f64>, v: &Array1<f64>, n: f64) {
+    if acc.len() < v.len() {
+        acc.resize(v.len(), 0.0);
+    }
+    for (m, x) in acc.iter_mut().zip(v) {
+        *m += x * x / n;
+    }
+}
+
+fn max_into(acc: &mut Vec<f64>, v: &Array1<f64>) {
+    if acc.len() < v.len() {
+        acc.resize(v.len(), 0.0);
+    }
+    for (m, x) in acc.iter_mut().zip(v) {
+        *m = m.max(x.abs());
+    }
+}
+
+/// Runs `net` (with `adapters` at their mixing weights) on every sample
+/// and records the ranges.
+pub fn calibrate(net: &Net, samples: &Samples, adapters: &[(&Adapter, f64)]) -> Ranges {
+    let n = net.layers.len();
     let mut r = Ranges {
-        input: vec![0.0; net.input_dim()],
-        layer: vec![0.0; net.layers.len()],
-        rows: net
-            .layers
-            .iter()
-            .map(|l| vec![0.0; l.w.first().map_or(0, |w| w.nrows())])
-            .collect(),
-        input_ms: net
-            .layers
-            .iter()
-            .map(|l| vec![0.0; l.w.first().map_or(0, |w| w.ncols())])
-            .collect(),
+        rows: vec![Vec::new(); n],
+        mids: vec![None; n],
+        input_ms: vec![Vec::new(); n],
+        mid_ms: vec![None; n],
     };
-    let n = samples.inputs.len().max(1) as f64;
+    let count = samples.inputs.len().max(1) as f64;
     for (x, &p) in samples.inputs.iter().zip(&samples.phases) {
-        let t = net.forward_trace(x, p);
-        for (l, ms) in r.input_ms.iter_mut().enumerate() {
-            let inputs: Vec<f64> = match l {
-                0 => t.x_norm.clone(),
-                _ => t.pre[l - 1]
-                    .iter()
-                    .map(|&v| crate::float_pfnn::elu(v))
-                    .collect(),
-            };
-            for (m, v) in ms.iter_mut().zip(inputs) {
-                *m += v * v / n;
+        let t = net.forward_trace(x, p, adapters);
+        for l in 0..n {
+            max_into(&mut r.rows[l], &t.pre[l]);
+            ms_into(&mut r.input_ms[l], &t.inputs[l], count);
+            if let Some(u) = &t.mids[l] {
+                max_into(r.mids[l].get_or_insert_with(Vec::new), u);
+                ms_into(r.mid_ms[l].get_or_insert_with(Vec::new), u, count);
             }
-        }
-        for (m, v) in r.input.iter_mut().zip(&t.x_norm) {
-            *m = m.max(v.abs());
-        }
-        for (l, pre) in t.pre.iter().enumerate() {
-            for (m, v) in r.rows[l].iter_mut().zip(pre) {
-                *m = m.max(v.abs());
-            }
-            r.layer[l] = r.rows[l].iter().copied().fold(0.0, f64::max);
         }
     }
     r

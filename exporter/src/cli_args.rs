@@ -1,6 +1,6 @@
 //! Command-line pieces shared by `exporter` and `host-sim`.
 
-use crate::float_pfnn::GatingMode;
+use crate::net::GatingMode;
 
 /// `--gating` of the command lines.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]

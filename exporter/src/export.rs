@@ -1,13 +1,14 @@
-//! From a float PFNN to blob bytes and the export report.
+//! From a float [`Net`] to blob bytes and the one export report, whatever
+//! the importer and the ops.
 
 use phasegate::blob::WeightFormat;
 use phasegate::Model;
 use serde::Serialize;
 
-use crate::blob_writer::encode;
 use crate::control_points::Residual;
-use crate::float_pfnn::FloatPfnn;
-use crate::quantise::{quantise_pfnn, LayerReport, QuantOptions};
+use crate::encode::encode;
+use crate::net::Net;
+use crate::quantise::{quantise_net, QuantLayerReport, QuantOptions};
 
 /// The `--report` JSON.
 #[derive(Clone, Debug, Serialize)]
@@ -18,7 +19,7 @@ pub struct ExportReport {
     pub gating: String,
     /// Experts per layer.
     pub experts: usize,
-    /// "int8" or "int16".
+    /// "int8" or "int16" ("mixed" when layers differ).
     pub weight_format: &'static str,
     /// Bytes of the blob.
     pub blob_bytes: usize,
@@ -33,7 +34,7 @@ pub struct ExportReport {
     /// Inputs within this many standard deviations of the mean do not saturate.
     pub input_range_sigma: f64,
     /// Per-layer figures.
-    pub layers: Vec<LayerReport>,
+    pub layers: Vec<QuantLayerReport>,
     /// True when every layer's no-overflow proof holds.
     pub overflow_proof: bool,
     /// How the proof is made.
@@ -68,7 +69,7 @@ pub enum ExportError {
     Quant(#[from] crate::quantise::QuantError),
     /// Encoding failed.
     #[error(transparent)]
-    Encode(#[from] crate::blob_writer::EncodeError),
+    Encode(#[from] crate::encode::EncodeError),
     /// The blob written does not load: a bug, never shipped.
     #[error("the blob written does not load back: {0}")]
     SelfCheck(phasegate::Error),
@@ -79,22 +80,33 @@ pub const PROOF_STATEMENT: &str = "for every row: sum|w|*2^15 fits the accumulat
 the gate-blended sum max_k(sum|w_k|*2^15+|b_k|)*sum|g| < 2^63, and the pre-shift brings that bound below 2^31; \
 activations are i16, so this holds for any input, not only the calibrated range";
 
+/// "int8" or "int16".
+pub fn format_name(w: WeightFormat) -> &'static str {
+    match w {
+        WeightFormat::I8 => "int8",
+        WeightFormat::I16 => "int16",
+    }
+}
+
 /// Quantises, encodes and re-loads `net`; returns the blob and its report.
-pub fn export_pfnn(
-    net: &FloatPfnn,
+/// `residual` is the control-point recovery residual of a cubic PFNN, for
+/// the report.
+pub fn export(
+    net: &Net,
     residual: Option<Residual>,
     opts: &QuantOptions,
 ) -> Result<(Vec<u8>, ExportReport), ExportError> {
-    let q = quantise_pfnn(net, opts)?;
+    let q = quantise_net(net, opts)?;
     let blob = encode(&q.model)?;
     let model = Model::from_bytes(&blob).map_err(ExportError::SelfCheck)?;
     let report = ExportReport {
         format_version: phasegate::blob::FORMAT_VERSION,
         gating: net.mode.name().to_string(),
-        experts: net.layers[0].experts(),
-        weight_format: match opts.weights {
-            WeightFormat::I8 => "int8",
-            WeightFormat::I16 => "int16",
+        experts: net.experts(),
+        weight_format: if q.layers.iter().all(|l| l.weights == q.layers[0].weights) {
+            format_name(opts.weights_of(0))
+        } else {
+            "mixed"
         },
         blob_bytes: blob.len(),
         ram_bytes: model.ram_bytes(),

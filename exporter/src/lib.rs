@@ -3,16 +3,17 @@
 //! fixed-point runtime is measured against.
 
 pub mod atomic;
-pub mod blob_writer;
 pub mod calibrate;
 pub mod cli_args;
 pub mod control_points;
 pub mod cp;
+pub mod encode;
 pub mod error;
 pub mod export;
-pub mod float_pfnn;
 pub mod inspect;
+pub mod net;
 pub mod npz;
+pub mod ops;
 pub mod pfnn_dir;
 pub mod quantise;
 pub mod style;

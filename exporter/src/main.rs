@@ -9,8 +9,8 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 
-use exporter::export::{export_pfnn, ExportReport};
-use exporter::float_pfnn::{FloatPfnn, GatingMode};
+use exporter::export::ExportReport;
+use exporter::net::{GatingMode, Net};
 use exporter::quantise::QuantOptions;
 
 #[derive(Parser)]
@@ -110,7 +110,7 @@ fn spinner(msg: &str) -> ProgressBar {
 fn load_pfnn_dir(
     dir: &Path,
     mode: GatingMode,
-) -> Result<(FloatPfnn, Option<exporter::control_points::Residual>)> {
+) -> Result<(Net, Option<exporter::control_points::Residual>)> {
     let target = if std::io::stdout().is_terminal() {
         ProgressDrawTarget::stderr()
     } else {
@@ -134,13 +134,13 @@ fn load_pfnn_dir(
         GatingMode::Cubic => "recovering control points",
         _ => "selecting tables",
     });
-    let out = FloatPfnn::from_tables(&tables, mode);
+    let out = Net::from_pfnn_tables(&tables, mode);
     pb.finish_and_clear();
     Ok(out)
 }
 
 fn export(
-    net: &FloatPfnn,
+    net: &Net,
     residual: Option<exporter::control_points::Residual>,
     q: &QuantArgs,
 ) -> Result<()> {
@@ -154,7 +154,7 @@ fn export(
         ..QuantOptions::default()
     };
     let pb = spinner("calibrating and quantising");
-    let (blob, report) = export_pfnn(net, residual, &opts)?;
+    let (blob, report) = exporter::export::export(net, residual, &opts)?;
     pb.finish_and_clear();
     write_outputs(&blob, &report, q)?;
     if std::io::stdout().is_terminal() || std::env::var_os("PHASEGATE_VERBOSE").is_some() {
@@ -200,9 +200,12 @@ fn summary(r: &ExportReport, out: &Path) {
         r.ram_bytes, r.macs_per_frame
     );
     for l in &r.layers {
+        let blend = l.max_blend_bits.map_or(String::new(), |b| {
+            format!(", worst blended accumulator 2^{b:.1}")
+        });
         println!(
-            "layer {}: {}x{} x{} experts, acc {}, weight SQNR {:.1} dB, worst blended accumulator 2^{:.1}",
-            l.index, l.out_dim, l.in_dim, l.experts, l.accumulator, l.weight_sqnr_db, l.max_blend_bits
+            "layer {}: {} {}x{} x{} experts, acc {}, weight SQNR {:.1} dB{blend}",
+            l.index, l.form, l.out_dim, l.in_dim, l.experts, l.accumulator, l.weight_sqnr_db
         );
     }
     println!(
@@ -240,7 +243,7 @@ fn run(cli: Cli) -> Result<()> {
             export(&net, residual, &quant)
         }
         Command::Npz { weights, quant } => {
-            let net = exporter::npz::float_pfnn_from_npz(&weights, quant.gating.into())?;
+            let net = exporter::npz::pfnn_from_npz(&weights, quant.gating.into())?;
             export(&net, None, &quant)
         }
         Command::Cp(a) => exporter::cp::cli::cp(&a),

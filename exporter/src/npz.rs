@@ -21,7 +21,7 @@ use std::collections::BTreeMap;
 use std::io::{Cursor, Read, Write};
 use std::path::Path;
 
-use crate::float_pfnn::{ExpertLayer, FloatPfnn, GatingMode};
+use crate::net::{ExpertLayer, GatingMode, Net, NetLayer};
 
 /// One array: shape and values (widened to f64).
 #[derive(Clone, Debug, PartialEq)]
@@ -128,20 +128,20 @@ fn vector(a: &NpArray, name: &str) -> Result<Array1<f64>> {
 }
 
 /// Reads a PFNN-shaped float network from the layout above.
-pub fn float_pfnn_from_npz(path: &Path, mode: GatingMode) -> Result<FloatPfnn> {
-    float_pfnn_from_arrays(&read_npz(path)?, path, mode)
+pub fn pfnn_from_npz(path: &Path, mode: GatingMode) -> Result<Net> {
+    pfnn_from_arrays(&read_npz(path)?, path, mode)
 }
 
-/// [`float_pfnn_from_npz`] for an `.npz` already in memory.
-pub fn float_pfnn_from_npz_bytes(bytes: &[u8], name: &Path, mode: GatingMode) -> Result<FloatPfnn> {
-    float_pfnn_from_arrays(&read_npz_from(Cursor::new(bytes), name)?, name, mode)
+/// [`pfnn_from_npz`] for an `.npz` already in memory.
+pub fn pfnn_from_npz_bytes(bytes: &[u8], name: &Path, mode: GatingMode) -> Result<Net> {
+    pfnn_from_arrays(&read_npz_from(Cursor::new(bytes), name)?, name, mode)
 }
 
-fn float_pfnn_from_arrays(
+fn pfnn_from_arrays(
     arrays: &BTreeMap<String, NpArray>,
     path: &Path,
     mode: GatingMode,
-) -> Result<FloatPfnn> {
+) -> Result<Net> {
     let v = |n: &str| -> Result<Array1<f64>> {
         vector(take(arrays, n, path)?, n).with_context(|| path.display().to_string())
     };
@@ -205,18 +205,18 @@ fn float_pfnn_from_arrays(
             layers[0].experts()
         );
     }
-    Ok(FloatPfnn {
+    Ok(Net {
         mode,
         xmean,
         xstd,
         ymean,
         ystd,
-        layers,
+        layers: layers.into_iter().map(NetLayer::Dense).collect(),
     })
 }
 
 /// Writes a float network in the layout above (float32).
-pub fn float_pfnn_to_npz(net: &FloatPfnn, path: &Path) -> Result<()> {
+pub fn pfnn_to_npz(net: &Net, path: &Path) -> Result<()> {
     let f = |a: &Array1<f64>| a.iter().map(|&v| v as f32).collect::<Vec<f32>>();
     let mut arrays = vec![
         ("Xmean", vec![net.xmean.len() as u64], f(&net.xmean)),
@@ -226,8 +226,17 @@ pub fn float_pfnn_to_npz(net: &FloatPfnn, path: &Path) -> Result<()> {
     ];
     const W: [&str; 3] = ["W0", "W1", "W2"];
     const B: [&str; 3] = ["b0", "b1", "b2"];
+    if net.layers.len() != 3 {
+        bail!(
+            "the PFNN .npz layout holds three layers, the network has {}",
+            net.layers.len()
+        );
+    }
     for (l, layer) in net.layers.iter().enumerate() {
-        let (rows, cols) = layer.w[0].dim();
+        let layer = layer.as_dense().ok_or_else(|| {
+            anyhow!("layer {l} is not dense: the PFNN .npz layout holds dense layers")
+        })?;
+        let (rows, cols) = layer.dim();
         let k = layer.experts() as u64;
         let w: Vec<f32> = layer
             .w
@@ -245,7 +254,7 @@ pub fn float_pfnn_to_npz(net: &FloatPfnn, path: &Path) -> Result<()> {
 mod tests {
     use super::*;
 
-    fn tiny() -> FloatPfnn {
+    fn tiny() -> Net {
         let layer = |r: usize, c: usize| ExpertLayer {
             w: (0..4)
                 .map(|k| {
@@ -256,13 +265,16 @@ mod tests {
                 .map(|k| Array1::from_shape_fn(r, |i| (k + i) as f64 * 0.5))
                 .collect(),
         };
-        FloatPfnn {
+        Net {
             mode: GatingMode::Cubic,
             xmean: Array1::from(vec![0.5, -1.0, 2.0]),
             xstd: Array1::from(vec![1.0, 2.0, 0.25]),
             ymean: Array1::from(vec![3.0, 4.0]),
             ystd: Array1::from(vec![0.5, 8.0]),
-            layers: [layer(5, 3), layer(5, 5), layer(2, 5)],
+            layers: vec![layer(5, 3), layer(5, 5), layer(2, 5)]
+                .into_iter()
+                .map(NetLayer::Dense)
+                .collect(),
         }
     }
 
@@ -271,10 +283,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("m.npz");
         let net = tiny();
-        float_pfnn_to_npz(&net, &p).unwrap();
-        let back = float_pfnn_from_npz(&p, GatingMode::Cubic).unwrap();
+        pfnn_to_npz(&net, &p).unwrap();
+        let back = pfnn_from_npz(&p, GatingMode::Cubic).unwrap();
         assert_eq!(back, net);
-        assert!(float_pfnn_from_npz(&p, GatingMode::Cubic).is_ok());
+        assert!(pfnn_from_npz(&p, GatingMode::Cubic).is_ok());
     }
 
     #[test]
@@ -282,10 +294,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("bad.npz");
         write_npz(&p, &[("Xmean", vec![2], vec![0.0, 1.0])]).unwrap();
-        let e = format!(
-            "{:#}",
-            float_pfnn_from_npz(&p, GatingMode::Cubic).unwrap_err()
-        );
+        let e = format!("{:#}", pfnn_from_npz(&p, GatingMode::Cubic).unwrap_err());
         assert!(e.contains("missing array Xstd"), "{e}");
         write_npz(&p, &[("Xmean", vec![2], vec![0.0, f32::NAN])]).unwrap();
         let e = format!("{:#}", read_npz(&p).unwrap_err());

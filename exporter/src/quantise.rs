@@ -1,15 +1,20 @@
-//! Float network -> integer blob model.
+//! One quantiser for every network: float [`Net`] in, integer [`QModel`]
+//! out, with a hook per op ([`NetLayer::quantise`]).
 //!
 //! * Weights: symmetric, per output row, one scale shared by all experts of a
 //!   row so their accumulators can be blended before a single requantisation.
 //! * Activations: int16. The input format comes from the declared input range
-//!   in standard deviations of the normalisation statistics; each hidden
-//!   layer's format from the largest pre-activation the float network reaches
-//!   on inputs drawn from those statistics, times a headroom factor; the
-//!   output layer gets a scale per row the same way.
-//! * Overflow: every accumulator and every intermediate of the requantisation
-//!   is bounded for *any* i16 activation vector (|x| <= 2^15), so the proof
-//!   does not depend on the calibration at all; see [`LayerReport::proof`].
+//!   in standard deviations of the normalisation statistics; every column of
+//!   a node's input gets its own scale, chosen with the consuming op's
+//!   weights ([`column_scales`]): hidden rows in powers of two (ELU needs to
+//!   know where 1.0 is), output rows free scales undone by the output stage.
+//! * Calibration: the float network on inputs drawn from the normalisation
+//!   statistics ([`crate::calibrate`]); ops say how many samples they need.
+//! * Overflow: every accumulator and every intermediate of the
+//!   requantisation is bounded for *any* i16 activation vector, so the
+//!   proof does not depend on the calibration at all.
+
+use std::collections::BTreeMap;
 
 use ndarray::Array2;
 use phasegate::blob::{
@@ -18,9 +23,10 @@ use phasegate::blob::{
 use phasegate::{Gate, Phase};
 use serde::Serialize;
 
-use crate::blob_writer::{BlobLayer, BlobModel};
-use crate::calibrate::{measure_ranges, normal_inputs, Ranges};
-use crate::float_pfnn::{ExpertLayer, FloatPfnn, GatingMode};
+use crate::calibrate::{calibrate, normal_inputs, Ranges};
+use crate::encode::{QKind, QLayer, QModel};
+use crate::net::{GatingMode, Net};
+use crate::ops::NetLayer;
 
 /// Knobs of the quantiser.
 #[derive(Clone, Debug, Serialize)]
@@ -39,6 +45,30 @@ pub struct QuantOptions {
     pub headroom: f64,
     /// Seed of the calibration sampler.
     pub seed: u64,
+    /// Per-layer weight storage overriding `weights` (layer index to
+    /// format): mixed precision, and per-layer error attribution.
+    #[serde(
+        serialize_with = "ser_layer_weights",
+        skip_serializing_if = "BTreeMap::is_empty"
+    )]
+    pub layer_weights: BTreeMap<usize, WeightFormat>,
+}
+
+impl QuantOptions {
+    /// Weight storage of layer `l`.
+    pub fn weights_of(&self, l: usize) -> WeightFormat {
+        self.layer_weights.get(&l).copied().unwrap_or(self.weights)
+    }
+}
+
+fn ser_layer_weights<S: serde::Serializer>(
+    w: &BTreeMap<usize, WeightFormat>,
+    s: S,
+) -> Result<S::Ok, S::Error> {
+    s.collect_map(
+        w.iter()
+            .map(|(l, f)| (l.to_string(), crate::export::format_name(*f))),
+    )
 }
 
 fn ser_weight_format<S: serde::Serializer>(w: &WeightFormat, s: S) -> Result<S::Ok, S::Error> {
@@ -57,21 +87,28 @@ impl Default for QuantOptions {
             calibration_scale: 1.0,
             headroom: 1.5,
             seed: 0x5EED_CA1B,
+            layer_weights: BTreeMap::new(),
         }
     }
 }
 
-/// What the quantiser did to one layer and what it proved about it.
+/// What the quantiser did to one node and what it proved about it.
 #[derive(Clone, Debug, Serialize)]
-pub struct LayerReport {
-    /// Layer index.
+pub struct QuantLayerReport {
+    /// Node index.
     pub index: usize,
-    /// `in x out`, experts.
+    /// "dense", "cp" or "diagonal".
+    pub form: &'static str,
+    /// Input width.
     pub in_dim: usize,
     /// Output width.
     pub out_dim: usize,
     /// Experts stored.
     pub experts: usize,
+    /// CP rank.
+    pub rank: Option<usize>,
+    /// "int8" or "int16".
+    pub weights: &'static str,
     /// Accumulator width chosen ("i32" when provable, else "i64").
     pub accumulator: &'static str,
     /// Smallest and largest Q format (fraction bits) of the rows (hidden
@@ -79,23 +116,28 @@ pub struct LayerReport {
     pub out_frac_range: Option<(u8, u8)>,
     /// Largest |pre-activation| seen in calibration.
     pub calibrated_max: f64,
-    /// Weight signal-to-quantisation-noise ratio, dB.
+    /// Bytes of the node's sections in the blob.
+    pub bytes: usize,
+    /// Weight signal-to-quantisation-noise ratio, dB (all weight arrays).
     pub weight_sqnr_db: f64,
-    /// log2 of the largest per-expert dot product possible for any i16 input.
-    pub max_dot_bits: f64,
-    /// log2 of the largest blended accumulator possible for any i16 input.
-    pub max_blend_bits: f64,
+    /// log2 of the largest per-expert dot product possible for any i16
+    /// input (dense nodes).
+    pub max_dot_bits: Option<f64>,
+    /// log2 of the largest blended accumulator possible for any i16 input
+    /// (dense nodes).
+    pub max_blend_bits: Option<f64>,
     /// Whether no accumulator or intermediate can overflow or saturate
-    /// before the final i16 saturation, for any i16 input.
+    /// before the final i16 saturation, for any i16 input (re-checked by
+    /// the loader where the format allows).
     pub proof: bool,
 }
 
 /// Result of quantising a network.
 pub struct Quantised {
     /// Ready to encode.
-    pub model: BlobModel,
-    /// Per-layer figures.
-    pub layers: Vec<LayerReport>,
+    pub model: QModel,
+    /// Per node.
+    pub layers: Vec<QuantLayerReport>,
     /// Ranges measured in calibration.
     pub ranges: Ranges,
     /// Input format (fraction bits of normalised inputs).
@@ -128,11 +170,286 @@ pub enum QuantError {
 
 const ACT_MAX: f64 = 32767.0;
 const Q16: f64 = 65536.0;
+pub(crate) const I32_MAX: u128 = i32::MAX as u128;
 
 /// Fraction bits so that `max * headroom` still fits an i16, at most `cap`.
-fn frac_for(max: f64, headroom: f64, cap: u8) -> u8 {
+pub fn frac_for(max: f64, headroom: f64, cap: u8) -> u8 {
     let bits = (ACT_MAX / (max * headroom).max(1e-9)).log2().floor();
     bits.clamp(0.0, f64::from(cap)) as u8
+}
+
+/// log2 of a positive bound, 0 for none.
+pub(crate) fn bits(v: f64) -> f64 {
+    if v <= 0.0 {
+        0.0
+    } else {
+        v.log2()
+    }
+}
+
+/// Largest integer weight of a format.
+pub(crate) fn qmax(format: WeightFormat) -> f64 {
+    match format {
+        WeightFormat::I8 => 127.0,
+        WeightFormat::I16 => 32767.0,
+    }
+}
+
+fn sqnr(sig: f64, noise: f64) -> f64 {
+    10.0 * (sig / noise.max(f64::MIN_POSITIVE)).log10()
+}
+
+/// The requantisation record of row `i` of a dense node whose blended
+/// accumulator is at most `blend` for any i16 input: a pre-shift that
+/// brings the bound within 31 bits, then the multiplier.
+pub(crate) fn requant_for_blend(
+    spec: &LayerSpec<'_>,
+    i: usize,
+    row_scale: f64,
+    blend: i128,
+) -> Result<Requant, QuantError> {
+    if blend >= i128::from(i64::MAX) {
+        return Err(QuantError::Overflow {
+            layer: spec.index,
+            row: i,
+        });
+    }
+    let pre = (128 - blend.leading_zeros()).saturating_sub(31) as u8;
+    let m_real = spec.targets[i] / (Q16 * row_scale) * f64::from(pre).exp2();
+    let (multiplier, post_shift) = fixed_multiplier(m_real).ok_or(QuantError::Scale {
+        layer: spec.index,
+        row: i,
+    })?;
+    Ok(Requant {
+        multiplier,
+        pre_shift: pre,
+        post_shift,
+        frac: spec.fracs[i],
+    })
+}
+
+/// What a layer's quantisation depends on besides its weights.
+#[derive(Clone, Debug)]
+pub struct LayerSpec<'s> {
+    /// Position, for errors.
+    pub index: usize,
+    /// Integer units per real unit of each input column.
+    pub in_scales: &'s [f64],
+    /// Integer units per real unit wanted for each output row.
+    pub targets: &'s [f64],
+    /// Q format recorded per output row (ELU reads it; adapters must
+    /// repeat their base layer's).
+    pub fracs: &'s [u8],
+    /// Activation after requantisation.
+    pub activation: Activation,
+    /// Whether the layer uses the phase gate.
+    pub gated: bool,
+    /// Weight storage.
+    pub format: WeightFormat,
+    /// Gating (for the worst-case gate magnitude).
+    pub gating: Gating,
+    /// Largest |u_r| seen in calibration (CP layers).
+    pub mid_max: Option<&'s [f64]>,
+    /// Mean square of each input column in calibration (real units): with
+    /// it, each row's scale trades clipping a few large weights against
+    /// rounding all the others, weighted by how much each column carries.
+    pub in_power: Option<&'s [f64]>,
+    /// Mean square of each middle component in calibration (CP layers).
+    pub mid_power: Option<&'s [f64]>,
+    /// Factor between calibrated maxima and the i16 range.
+    pub headroom: f64,
+}
+
+/// `(m, post)` with `m * 2^-post == m_real`, `m` in `[2^30, 2^31)`, post in `[0, 62]`.
+pub fn fixed_multiplier(m_real: f64) -> Option<(i32, u8)> {
+    if !(m_real.is_finite() && m_real > 0.0) {
+        return None;
+    }
+    let mut post = (30.0 - m_real.log2()).floor() as i32 + 1;
+    let mut m = (m_real * f64::from(post).exp2()).round();
+    if m >= 2147483648.0 {
+        post -= 1;
+        m = (m_real * f64::from(post).exp2()).round();
+    }
+    if post > 62 {
+        m = (m_real * 62f64.exp2()).round();
+        post = 62;
+    }
+    if !(0..=62).contains(&post) || m >= 2147483648.0 {
+        return None;
+    }
+    Some((m as i32, post as u8))
+}
+
+/// Smallest shift `s` with `(bound >> s) + 1 <= i32::MAX`.
+pub fn shift_to_i32(bound: u128) -> u8 {
+    let mut s = 0u8;
+    while (bound >> s) + 1 > I32_MAX {
+        s += 1;
+    }
+    s
+}
+
+/// Quantised rows of one matrix (one scale per row).
+pub(crate) struct Rows {
+    pub q: Vec<i32>,
+    pub scales: Vec<f64>,
+    pub l1: Vec<u64>,
+    pub sig: f64,
+    pub noise: f64,
+}
+
+/// Quantises `rows x cols` real values `f(i, j)` with one scale per row.
+///
+/// Without `power` the scale maps the row's largest value to `q`. With the
+/// mean square of each column's input (integer units), the scale is the
+/// one between that and 1/0.6 of it that minimises the row's expected
+/// output error `sum_j (w - q(w))^2 E[x_j^2]` (clipping a few outliers buys
+/// a finer step for every other weight; with int8 this matters).
+pub(crate) fn quantise_rows(
+    rows: usize,
+    cols: usize,
+    q: f64,
+    f: impl Fn(usize, usize) -> f64,
+    power: Option<&[f64]>,
+) -> Rows {
+    let mut out = Rows {
+        q: vec![0; rows * cols],
+        scales: vec![1.0; rows],
+        l1: vec![0; rows],
+        sig: 0.0,
+        noise: 0.0,
+    };
+    for i in 0..rows {
+        let row: Vec<f64> = (0..cols).map(|j| f(i, j)).collect();
+        let maxabs = row.iter().map(|v| v.abs()).fold(0.0, f64::max);
+        let mut s = if maxabs > 0.0 { q / maxabs } else { 1.0 };
+        if let (Some(p), true) = (power, maxabs > 0.0) {
+            let err = |sc: f64| -> f64 {
+                row.iter()
+                    .zip(p)
+                    .map(|(&v, &pw)| (v - (v * sc).round().clamp(-q, q) / sc).powi(2) * pw)
+                    .sum()
+            };
+            let max_scale = s;
+            let mut best = err(s);
+            for step in 1..=40 {
+                let cand = max_scale / (1.0 - 0.01 * f64::from(step));
+                let e = err(cand);
+                if e < best {
+                    best = e;
+                    s = cand;
+                }
+            }
+        }
+        out.scales[i] = s;
+        for (j, &v) in row.iter().enumerate() {
+            let wq = (v * s).round().clamp(-q, q);
+            out.q[i * cols + j] = wq as i32;
+            out.l1[i] += wq.abs() as u64;
+            out.sig += v * v;
+            out.noise += (v - wq / s).powi(2);
+        }
+    }
+    out
+}
+
+pub(crate) fn requant_for(
+    spec: &LayerSpec<'_>,
+    i: usize,
+    row_scale: f64,
+    bound: u128,
+) -> Result<Requant, QuantError> {
+    if bound >= 1 << 63 {
+        return Err(QuantError::Overflow {
+            layer: spec.index,
+            row: i,
+        });
+    }
+    let pre = shift_to_i32(bound);
+    let m_real = spec.targets[i] / (Q16 * row_scale) * f64::from(pre).exp2();
+    let (multiplier, post_shift) = fixed_multiplier(m_real).ok_or(QuantError::Scale {
+        layer: spec.index,
+        row: i,
+    })?;
+    Ok(Requant {
+        multiplier,
+        pre_shift: pre,
+        post_shift,
+        frac: spec.fracs[i],
+    })
+}
+
+pub(crate) fn layer_desc(
+    spec: &LayerSpec<'_>,
+    op: LayerOp,
+    in_dim: usize,
+    out_dim: usize,
+    experts: usize,
+    acc: AccWidth,
+) -> LayerDesc {
+    LayerDesc {
+        op,
+        in_dim: in_dim as u16,
+        out_dim: out_dim as u16,
+        experts: experts as u16,
+        weights: spec.format,
+        acc,
+        activation: spec.activation,
+        gated: spec.gated,
+        weight_section: Section::default(),
+        bias_section: Section::default(),
+        requant_section: Section::default(),
+    }
+}
+
+fn acc_name(acc: AccWidth) -> &'static str {
+    match acc {
+        AccWidth::I32 => "i32",
+        AccWidth::I64 => "i64",
+    }
+}
+
+pub(crate) fn layer_bytes(l: &QLayer) -> usize {
+    let d = &l.desc;
+    let wb = d.weights.bytes();
+    let mut n = l.weights.len() * wb + l.bias.len() * d.acc.bytes() + l.requant.len() * 8;
+    if let Some(cp) = &l.cp {
+        n += cp.a.len() * wb + cp.cores.len() * 2 + cp.mid.len() * 8;
+    }
+    n
+}
+
+pub(crate) fn layer_report(
+    spec: &LayerSpec<'_>,
+    layer: &QLayer,
+    form: &'static str,
+    rank: Option<usize>,
+    sig: f64,
+    noise: f64,
+) -> QuantLayerReport {
+    let fracs = spec
+        .fracs
+        .iter()
+        .fold((u8::MAX, 0u8), |(lo, hi), &f| (lo.min(f), hi.max(f)));
+    QuantLayerReport {
+        index: spec.index,
+        form,
+        in_dim: usize::from(layer.desc.in_dim),
+        out_dim: usize::from(layer.desc.out_dim),
+        experts: usize::from(layer.desc.experts),
+        rank,
+        weights: crate::export::format_name(spec.format),
+        accumulator: acc_name(layer.desc.acc),
+        out_frac_range: (spec.activation == Activation::Elu && !spec.fracs.is_empty())
+            .then_some(fracs),
+        calibrated_max: 0.0,
+        bytes: layer_bytes(layer),
+        weight_sqnr_db: sqnr(sig, noise),
+        max_dot_bits: None,
+        max_blend_bits: None,
+        proof: true,
+    }
 }
 
 /// Largest `sum_k |g_k|` (Q16) of `gating` over a fine phase grid, plus the
@@ -158,144 +475,6 @@ pub fn gating_for(mode: GatingMode, experts: usize) -> Result<Gating, QuantError
     })
 }
 
-fn bits(v: f64) -> f64 {
-    if v <= 0.0 {
-        0.0
-    } else {
-        v.log2()
-    }
-}
-
-/// Quantises `net` (a PFNN-shaped float network) into a blob model.
-pub fn quantise_pfnn(net: &FloatPfnn, opts: &QuantOptions) -> Result<Quantised, QuantError> {
-    if net
-        .xstd
-        .iter()
-        .chain(&net.ystd)
-        .any(|s| !s.is_finite() || *s <= 0.0)
-    {
-        return Err(QuantError::Invalid(
-            "normalisation std must be finite and positive".into(),
-        ));
-    }
-    let experts = net.layers[0].experts();
-    let gating = gating_for(net.mode, experts)?;
-    let samples = normal_inputs(
-        &net.xmean.to_vec(),
-        &net.xstd.to_vec(),
-        opts.calibration_samples,
-        opts.calibration_scale,
-        opts.seed,
-    );
-    let ranges = measure_ranges(net, &samples);
-    let input_frac = frac_for(opts.input_range_sigma, 1.0, 15);
-    let gsum = gate_l1_bound(&gating);
-    let q = match opts.weights {
-        WeightFormat::I8 => 127.0,
-        WeightFormat::I16 => 32767.0,
-    };
-
-    // Each layer's input columns get their own scale (integer units per
-    // real unit): as fine as the calibrated range allows (the cap), lowered
-    // where that balances the consuming layer's weight rounding noise
-    // against activation rounding noise (see `column_scales`).
-    let last = net.layers.len() - 1;
-    let input_caps = vec![f64::from(1u32 << input_frac); net.input_dim()];
-    let mut in_scales = column_scales(
-        &net.layers[0],
-        &input_caps,
-        &ranges.input_ms[0],
-        None,
-        q,
-        false,
-    );
-    let input_stage = net
-        .xmean
-        .iter()
-        .zip(&net.xstd)
-        .zip(&in_scales)
-        .map(|((&m, &sd), &u)| (m as f32, (u / sd) as f32))
-        .collect();
-
-    let mut layers = Vec::new();
-    let mut reports = Vec::new();
-    let mut output_stage = Vec::new();
-    for (li, layer) in net.layers.iter().enumerate() {
-        let is_last = li == last;
-        let row_max = &ranges.rows[li];
-        // Hidden rows stop at Q15: ELU needs -1.0 to be representable.
-        let finest = if is_last {
-            f64::INFINITY
-        } else {
-            f64::from(1u32 << 15)
-        };
-        let caps: Vec<f64> = row_max
-            .iter()
-            .map(|&m| (ACT_MAX / (opts.headroom * m.max(1e-6))).min(finest))
-            .collect();
-        // Hidden rows get a power-of-two format each (ELU needs to know
-        // where 1.0 is); output rows a free scale, undone by the output stage.
-        let targets = if is_last {
-            caps.clone()
-        } else {
-            let ystd = (li + 1 == last).then(|| net.ystd.to_vec());
-            column_scales(
-                &net.layers[li + 1],
-                &caps,
-                &ranges.input_ms[li + 1],
-                ystd.as_deref(),
-                q,
-                true,
-            )
-        };
-        let fracs: Vec<u8> = targets
-            .iter()
-            .map(|&t| {
-                if is_last {
-                    0
-                } else {
-                    t.log2().round().clamp(0.0, 15.0) as u8
-                }
-            })
-            .collect();
-        let in_power: Vec<f64> = ranges.input_ms[li]
-            .iter()
-            .zip(&in_scales)
-            .map(|(m, u)| m * u * u)
-            .collect();
-        let spec = LayerSpec {
-            index: li,
-            in_scales: &in_scales,
-            in_power: &in_power,
-            targets: &targets,
-            fracs: &fracs,
-            elu: !is_last,
-        };
-        let (bl, rep) = quantise_layer(&spec, layer, q, opts.weights, gsum)?;
-        reports.push(LayerReport {
-            calibrated_max: ranges.layer[li],
-            ..rep
-        });
-        layers.push(bl);
-        if is_last {
-            output_stage = output_stage_records(&targets, &net.ystd, &net.ymean);
-        }
-        in_scales = targets;
-    }
-    Ok(Quantised {
-        model: BlobModel {
-            kind: ModelKind::Pfnn,
-            gating,
-            input_stage,
-            output_stage,
-            layers,
-        },
-        layers: reports,
-        ranges,
-        input_frac,
-    })
-}
-
 /// The output stage: `(scale, offset)` per output, turning the last layer's
 /// integers at scale `targets` into model units.
 pub(crate) fn output_stage_records(
@@ -310,7 +489,8 @@ pub(crate) fn output_stage_records(
         .collect()
 }
 
-/// Scales of the input columns of `consumer`, at most `caps[j]` each.
+/// Scales of the input columns of `consumer` (the matrices its op applies
+/// to its input, see [`NetLayer::input_rows`]), at most `caps[j]` each.
 ///
 /// The consumer's rows are quantised with one scale per row, so a column
 /// whose effective weight `w / u_j` is large coarsens the whole row. With
@@ -323,22 +503,22 @@ pub(crate) fn output_stage_records(
 /// precision on lightly weighted columns for finer weights everywhere.
 /// `pow2`: scales are powers of two (hidden layers, for ELU).
 fn column_scales(
-    consumer: &ExpertLayer,
+    consumer: &[Array2<f64>],
     caps: &[f64],
     mean_sq: &[f64],
     row_weight: Option<&[f64]>,
     q: f64,
     pow2: bool,
 ) -> Vec<f64> {
-    let (rows, cols) = consumer.w.first().map_or((0, 0), Array2::dim);
+    let (rows, cols) = consumer.first().map_or((0, 0), Array2::dim);
     let mut colmax = vec![0.0f64; cols];
     let mut w2 = vec![vec![0.0f64; cols]; rows];
     let mut absmax = vec![vec![0.0f64; cols]; rows];
-    for w in &consumer.w {
+    for w in consumer {
         for ((i, j), &v) in w.indexed_iter() {
             colmax[j] = colmax[j].max(v.abs());
             absmax[i][j] = f64::max(absmax[i][j], v.abs());
-            w2[i][j] += v * v / consumer.w.len() as f64;
+            w2[i][j] += v * v / consumer.len() as f64;
         }
     }
     let floor = colmax.iter().copied().fold(0.0, f64::max) * 1e-3;
@@ -393,203 +573,141 @@ fn column_scales(
     best
 }
 
-/// What a layer's quantisation depends on besides its weights.
-struct LayerSpec<'s> {
-    index: usize,
-    /// Integer units per real unit, per input column.
-    in_scales: &'s [f64],
-    /// Mean square of each input column in integer units (calibrated).
-    in_power: &'s [f64],
-    /// Integer units per real unit wanted, per output row.
-    targets: &'s [f64],
-    /// Q format per output row (hidden layers).
-    fracs: &'s [u8],
-    elu: bool,
-}
-
-/// The row scale, between `max_scale` (no weight clipped) and 1/0.6 of it,
-/// that minimises the row's expected output error from weight rounding and
-/// clipping, `sum_k sum_j (w - q(w))^2 E[a_j^2]`. Clipping a few outlier
-/// weights buys a finer step for all the others; with int8 this matters.
-fn best_row_scale(
-    layer: &ExpertLayer,
-    i: usize,
-    max_scale: f64,
-    q: f64,
-    eff: &dyn Fn(f64, usize) -> f64,
-    power: &[f64],
-) -> f64 {
-    let row_err = |scale: f64| -> f64 {
-        layer
-            .w
-            .iter()
-            .flat_map(|w| {
-                w.row(i)
-                    .iter()
-                    .enumerate()
-                    .map(|(j, &v)| (j, v))
-                    .collect::<Vec<_>>()
-            })
-            .map(|(j, v)| {
-                let v = eff(v, j);
-                let d = v - (v * scale).round().clamp(-q, q) / scale;
-                d * d * power[j]
-            })
-            .sum()
-    };
-    (0..=40)
-        .map(|step| max_scale / (1.0 - 0.01 * f64::from(step)))
-        .map(|s| (row_err(s), s))
-        .fold((f64::INFINITY, max_scale), |best, c| {
-            if c.0 < best.0 {
-                c
-            } else {
-                best
-            }
-        })
-        .1
-}
-
-struct RowQuant {
-    scale: f64,
-    l1: Vec<i64>,
-}
-
-fn quantise_layer(
-    spec: &LayerSpec<'_>,
-    layer: &ExpertLayer,
-    q: f64,
-    format: WeightFormat,
-    gsum: i64,
-) -> Result<(BlobLayer, LayerReport), QuantError> {
-    let li = spec.index;
-    let experts = layer.experts();
-    let (out_dim, in_dim) = layer.w.first().map_or((0, 0), Array2::dim);
-    // The integer input of column j is x_j * in_scales[j]: its weights carry 1 / in_scales[j].
-    let eff = |w: f64, j: usize| w / spec.in_scales[j];
-    let mut weights = vec![0i32; experts * out_dim * in_dim];
-    let mut bias = vec![0i64; experts * out_dim];
-    let mut rows = Vec::with_capacity(out_dim);
-    let (mut sig, mut noise) = (0.0f64, 0.0f64);
-    for i in 0..out_dim {
-        let maxabs = layer
-            .w
-            .iter()
-            .flat_map(|w| {
-                w.row(i)
-                    .iter()
-                    .enumerate()
-                    .map(|(j, &v)| eff(v, j).abs())
-                    .collect::<Vec<_>>()
-            })
-            .fold(0.0, f64::max);
-        let scale = if maxabs > 0.0 {
-            best_row_scale(layer, i, q / maxabs, q, &eff, spec.in_power)
-        } else {
-            1.0
-        };
-        let mut l1 = vec![0i64; experts];
-        for (k, w) in layer.w.iter().enumerate() {
-            let base = (k * out_dim + i) * in_dim;
-            for (j, &v) in w.row(i).iter().enumerate() {
-                let v = eff(v, j);
-                let wq = (v * scale).round().clamp(-q, q);
-                weights[base + j] = wq as i32;
-                l1[k] += (wq as i64).abs();
-                sig += v * v;
-                noise += (v - wq / scale).powi(2);
-            }
-            bias[k * out_dim + i] = (layer.b[k][i] * scale).round() as i64;
-        }
-        rows.push(RowQuant { scale, l1 });
-    }
-    // 32-bit accumulators when every row provably fits, else 64-bit.
-    let fits_i32 = rows.iter().enumerate().all(|(i, r)| {
-        r.l1.iter().all(|&l| l << 15 <= i64::from(i32::MAX))
-            && (0..experts).all(|k| i32::try_from(bias[k * out_dim + i]).is_ok())
-    });
-    let acc = if fits_i32 {
-        AccWidth::I32
-    } else {
-        AccWidth::I64
-    };
-    let mut requant = Vec::with_capacity(out_dim);
-    let (mut max_dot, mut max_blend) = (0.0f64, 0.0f64);
-    for (i, r) in rows.iter().enumerate() {
-        let worst_expert = (0..experts)
-            .map(|k| i128::from(r.l1[k]) * 32768 + i128::from(bias[k * out_dim + i].abs()))
-            .max()
-            .unwrap_or(0);
-        let blend = worst_expert * i128::from(gsum);
-        if blend >= i128::from(i64::MAX) {
-            return Err(QuantError::Overflow { layer: li, row: i });
-        }
-        max_dot = max_dot.max(bits(
-            r.l1.iter().copied().max().unwrap_or(0) as f64 * 32768.0,
-        ));
-        max_blend = max_blend.max(bits(blend as f64));
-        let pre = (128 - blend.leading_zeros()).saturating_sub(31) as u8;
-        let m_real = spec.targets[i] / (Q16 * r.scale) * f64::from(pre).exp2();
-        let mut rq = multiplier(m_real, pre).ok_or(QuantError::Scale { layer: li, row: i })?;
-        rq.frac = spec.fracs[i];
-        requant.push(rq);
-    }
-    let desc = LayerDesc {
-        op: LayerOp::Dense,
-        in_dim: in_dim as u16,
-        out_dim: out_dim as u16,
-        experts: experts as u16,
-        weights: format,
-        acc,
-        activation: if spec.elu {
-            Activation::Elu
-        } else {
-            Activation::Identity
-        },
-        gated: true,
-        weight_section: Section::default(),
-        bias_section: Section::default(),
-        requant_section: Section::default(),
-    };
-    let frac_range = spec
-        .fracs
+/// Quantises `net` into a blob model: one pipeline for every op.
+pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantError> {
+    if net
+        .xstd
         .iter()
-        .fold((u8::MAX, 0u8), |(lo, hi), &f| (lo.min(f), hi.max(f)));
-    let report = LayerReport {
-        index: li,
-        in_dim,
-        out_dim,
-        experts,
-        accumulator: if acc == AccWidth::I32 { "i32" } else { "i64" },
-        out_frac_range: spec.elu.then_some(frac_range),
-        calibrated_max: 0.0,
-        weight_sqnr_db: 10.0 * (sig / noise.max(f64::MIN_POSITIVE)).log10(),
-        max_dot_bits: max_dot,
-        max_blend_bits: max_blend,
-        // Dot products: i32 proven row by row (and re-checked by the loader),
-        // i64 by |w x| <= 2^30 and in_dim < 2^16. Blend: < 2^63 (checked
-        // above). Pre-shift: the blend fits i32 after it, so sat32 never clips.
-        proof: true,
-    };
-    Ok((
-        BlobLayer {
-            desc,
-            weights,
-            bias,
-            requant,
-        },
-        report,
-    ))
-}
+        .chain(&net.ystd)
+        .any(|s| !s.is_finite() || *s <= 0.0)
+    {
+        return Err(QuantError::Invalid(
+            "normalisation std must be finite and positive".into(),
+        ));
+    }
+    if net.layers.is_empty() {
+        return Err(QuantError::Invalid("the network has no layers".into()));
+    }
+    let gating = gating_for(net.mode, net.experts())?;
+    let wanted = net
+        .layers
+        .iter()
+        .map(NetLayer::calibration_samples)
+        .fold(opts.calibration_samples, usize::max);
+    let samples = normal_inputs(
+        &net.xmean.to_vec(),
+        &net.xstd.to_vec(),
+        wanted,
+        opts.calibration_scale,
+        opts.seed,
+    );
+    let ranges = calibrate(net, &samples, &[]);
+    let input_frac = frac_for(opts.input_range_sigma, 1.0, 15);
 
-/// The requantisation record for multiplier `m_real` after a pre-shift of `pre`.
-fn multiplier(m_real: f64, pre: u8) -> Option<Requant> {
-    let (m, post) = crate::cp::quantise::fixed_multiplier(m_real)?;
-    Some(Requant {
-        multiplier: m,
-        pre_shift: pre,
-        post_shift: post,
-        frac: 0,
+    // Each node's input columns get their own scale (integer units per
+    // real unit): as fine as the calibrated range allows (the cap), lowered
+    // where that balances the consuming op's weight rounding noise against
+    // activation rounding noise (see `column_scales`).
+    let last = net.layers.len() - 1;
+    let input_caps = vec![f64::from(1u32 << input_frac); net.input_dim()];
+    let mut in_scales = column_scales(
+        &net.layers[0].input_rows(),
+        &input_caps,
+        &ranges.input_ms[0],
+        None,
+        qmax(opts.weights_of(0)),
+        false,
+    );
+    let input_stage = net
+        .xmean
+        .iter()
+        .zip(&net.xstd)
+        .zip(&in_scales)
+        .map(|((&m, &sd), &u)| (m as f32, (u / sd) as f32))
+        .collect();
+
+    let mut layers = Vec::new();
+    let mut reports = Vec::new();
+    let mut output_stage = Vec::new();
+    for (li, layer) in net.layers.iter().enumerate() {
+        let is_last = li == last;
+        // Hidden rows stop at Q15: ELU needs -1.0 to be representable.
+        let finest = if is_last {
+            f64::INFINITY
+        } else {
+            f64::from(1u32 << 15)
+        };
+        let caps: Vec<f64> = ranges.rows[li]
+            .iter()
+            .map(|&m| (ACT_MAX / (opts.headroom * m.max(1e-6))).min(finest))
+            .collect();
+        // Hidden rows get a power-of-two format each (ELU needs to know
+        // where 1.0 is); output rows a free scale, undone by the output stage.
+        let targets = if is_last {
+            caps
+        } else {
+            let next = &net.layers[li + 1];
+            // The output std weighs the last layer's rows where they are outputs.
+            let ystd = (li + 1 == last && next.rows_are_outputs()).then(|| net.ystd.to_vec());
+            column_scales(
+                &next.input_rows(),
+                &caps,
+                &ranges.input_ms[li + 1],
+                ystd.as_deref(),
+                qmax(opts.weights_of(li + 1)),
+                true,
+            )
+        };
+        let fracs: Vec<u8> = targets
+            .iter()
+            .map(|&t| {
+                if is_last {
+                    0
+                } else {
+                    t.log2().round().clamp(0.0, 15.0) as u8
+                }
+            })
+            .collect();
+        let spec = LayerSpec {
+            index: li,
+            in_scales: &in_scales,
+            targets: &targets,
+            fracs: &fracs,
+            activation: if is_last {
+                Activation::Identity
+            } else {
+                Activation::Elu
+            },
+            gated: true,
+            format: opts.weights_of(li),
+            gating,
+            mid_max: ranges.mids[li].as_deref(),
+            in_power: Some(&ranges.input_ms[li]),
+            mid_power: ranges.mid_ms[li].as_deref(),
+            headroom: opts.headroom,
+        };
+        let (ql, rep) = layer.quantise(&spec)?;
+        reports.push(QuantLayerReport {
+            calibrated_max: ranges.layer_max(li),
+            ..rep
+        });
+        layers.push(ql);
+        if is_last {
+            output_stage = output_stage_records(&targets, &net.ystd, &net.ymean);
+        }
+        in_scales = targets;
+    }
+    Ok(Quantised {
+        model: QModel {
+            kind: QKind::Model(ModelKind::Pfnn),
+            gating,
+            input_stage,
+            output_stage,
+            layers,
+        },
+        layers: reports,
+        ranges,
+        input_frac,
     })
 }
 
@@ -600,13 +718,13 @@ mod tests {
     #[test]
     fn multiplier_is_accurate() {
         for &m in &[1e-12, 3.7e-9, 0.001, 0.4999, 0.5, 0.9999999, 1.0, 1234.5] {
-            let r = multiplier(m, 0).unwrap();
-            let back = f64::from(r.multiplier) * (-f64::from(r.post_shift)).exp2();
+            let (mul, post) = fixed_multiplier(m).unwrap();
+            let back = f64::from(mul) * (-f64::from(post)).exp2();
             assert!(((back - m) / m).abs() < 1e-9 || m < 1e-10, "{m}: {back}");
-            assert!(r.multiplier >= 1 << 30 || r.post_shift == 62);
+            assert!(mul >= 1 << 30 || post == 62);
         }
-        assert!(multiplier(f64::NAN, 0).is_none());
-        assert!(multiplier(1e12, 0).is_none());
+        assert!(fixed_multiplier(f64::NAN).is_none());
+        assert!(fixed_multiplier(1e12).is_none());
     }
 
     #[test]
@@ -614,5 +732,14 @@ mod tests {
         assert_eq!(gate_l1_bound(&Gating::Constant { tables: 50 }), 65536 + 8);
         let cr = gate_l1_bound(&Gating::CatmullRom { points: 4 });
         assert!((81920..=81940).contains(&cr), "{cr}");
+    }
+
+    #[test]
+    fn shift_brings_bounds_within_i32() {
+        for b in [0u128, 1, I32_MAX - 1, I32_MAX, 1 << 40, (1 << 63) - 1] {
+            let s = shift_to_i32(b);
+            assert!((b >> s) < I32_MAX);
+            assert!(s == 0 || (b >> (s - 1)) + 1 > I32_MAX);
+        }
     }
 }

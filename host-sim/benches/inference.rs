@@ -4,7 +4,7 @@
 //! from one run. `cargo bench -p host-sim`.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use exporter::float_pfnn::{FloatPfnn, GatingMode};
+use exporter::net::{GatingMode, Net};
 use exporter::quantise::QuantOptions;
 use host_sim::accuracy::sample_matrix;
 use phasegate::blob::WeightFormat;
@@ -12,7 +12,7 @@ use phasegate::{Model, Phase};
 use std::hint::black_box;
 use std::path::Path;
 
-fn bench_blob(c: &mut Criterion, name: &str, blob: &[u8], net: &FloatPfnn) {
+fn bench_blob(c: &mut Criterion, name: &str, blob: &[u8], net: &Net) {
     let model = Model::from_bytes(blob).expect("valid blob");
     let macs = u64::from(model.macs_per_frame());
     let mut rt = host_sim::eval::host_runtime(model).expect("runtime");
@@ -56,7 +56,7 @@ fn inference(c: &mut Criterion) {
         );
         return;
     };
-    let (net, residual) = FloatPfnn::from_tables(&tables, GatingMode::Cubic);
+    let (net, residual) = Net::from_pfnn_tables(&tables, GatingMode::Cubic);
     for (name, weights) in [
         ("pfnn-int8", WeightFormat::I8),
         ("pfnn-int16", WeightFormat::I16),
@@ -65,7 +65,7 @@ fn inference(c: &mut Criterion) {
             weights,
             ..QuantOptions::default()
         };
-        let (blob, _) = exporter::export::export_pfnn(&net, residual, &opts).expect("export");
+        let (blob, _) = exporter::export::export(&net, residual, &opts).expect("export");
         bench_blob(c, name, &blob, &net);
     }
 }

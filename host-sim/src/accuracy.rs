@@ -4,8 +4,8 @@
 
 use anyhow::Result;
 use exporter::calibrate::normal_inputs;
-use exporter::export::{export_pfnn, ExportReport};
-use exporter::float_pfnn::{FloatPfnn, GatingMode};
+use exporter::export::{export, ExportReport};
+use exporter::net::{GatingMode, Net};
 use exporter::pfnn_dir::PfnnTables;
 use exporter::quantise::QuantOptions;
 use phasegate::blob::WeightFormat;
@@ -47,7 +47,7 @@ pub struct Accuracy {
 pub const SPREADS: [f64; 4] = [0.0, 0.25, 0.5, 1.0];
 
 /// Builds the samples of one spread as f32 matrices.
-pub fn sample_matrix(net: &FloatPfnn, n: usize, spread: f64, seed: u64) -> (Matrix<f32>, Vec<f32>) {
+pub fn sample_matrix(net: &Net, n: usize, spread: f64, seed: u64) -> (Matrix<f32>, Vec<f32>) {
     let s = normal_inputs(&net.xmean.to_vec(), &net.xstd.to_vec(), n, spread, seed);
     let cols = net.input_dim();
     let data = s.inputs.iter().flatten().map(|&v| v as f32).collect();
@@ -64,8 +64,8 @@ pub fn sample_matrix(net: &FloatPfnn, n: usize, spread: f64, seed: u64) -> (Matr
 /// Measures int16 and int8 cubic blobs and the demo's constant mode against
 /// the exact cubic float reference.
 pub fn measure(tables: &PfnnTables, samples: usize, seed: u64) -> Result<Accuracy> {
-    let (cubic, residual) = FloatPfnn::from_tables(tables, GatingMode::Cubic);
-    let (constant, _) = FloatPfnn::from_tables(tables, GatingMode::Constant);
+    let (cubic, residual) = Net::from_pfnn_tables(tables, GatingMode::Cubic);
+    let (constant, _) = Net::from_pfnn_tables(tables, GatingMode::Constant);
     let opts16 = QuantOptions {
         weights: WeightFormat::I16,
         ..QuantOptions::default()
@@ -74,8 +74,8 @@ pub fn measure(tables: &PfnnTables, samples: usize, seed: u64) -> Result<Accurac
         weights: WeightFormat::I8,
         ..QuantOptions::default()
     };
-    let (blob16, int16_report) = export_pfnn(&cubic, residual, &opts16)?;
-    let (blob8, int8_report) = export_pfnn(&cubic, residual, &opts8)?;
+    let (blob16, int16_report) = export(&cubic, residual, &opts16)?;
+    let (blob8, int8_report) = export(&cubic, residual, &opts8)?;
     let mut rows = Vec::new();
     for (i, &spread) in SPREADS.iter().enumerate() {
         let (x, p) = sample_matrix(&cubic, samples, spread, seed.wrapping_add(i as u64));

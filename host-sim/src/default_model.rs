@@ -5,7 +5,7 @@
 //! model on a fresh machine. Its float source (`model.npz`), its int8 blob
 //! and the golden vectors are checked in under `tests/golden/default/`.
 
-use exporter::float_pfnn::{ExpertLayer, FloatPfnn, GatingMode};
+use exporter::net::{ExpertLayer, GatingMode, Net, NetLayer};
 use ndarray::{Array1, Array2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -49,7 +49,7 @@ fn layer(rng: &mut ChaCha8Rng, rows: usize, cols: usize, gain: f64) -> ExpertLay
 }
 
 /// Generates the default model (deterministic on every platform).
-pub fn generate() -> FloatPfnn {
+pub fn generate() -> Net {
     let mut rng = ChaCha8Rng::seed_from_u64(SEED);
     let xmean = Array1::from_shape_fn(INPUT, |_| normal(&mut rng, 2.0));
     let xstd = Array1::from_shape_fn(INPUT, |_| uniform(&mut rng, 0.2, 5.0));
@@ -60,19 +60,19 @@ pub fn generate() -> FloatPfnn {
         layer(&mut rng, HIDDEN, HIDDEN, 1.5),
         layer(&mut rng, OUTPUT, HIDDEN, 1.0),
     ];
-    FloatPfnn {
+    Net {
         mode: GatingMode::Cubic,
         xmean,
         xstd,
         ymean,
         ystd,
-        layers,
+        layers: layers.into_iter().map(NetLayer::Dense).collect(),
     }
 }
 
 /// The checked-in float source, loaded.
-pub fn float_model() -> anyhow::Result<FloatPfnn> {
-    exporter::npz::float_pfnn_from_npz_bytes(
+pub fn float_model() -> anyhow::Result<Net> {
+    exporter::npz::pfnn_from_npz_bytes(
         NPZ,
         std::path::Path::new("embedded model.npz"),
         GatingMode::Cubic,

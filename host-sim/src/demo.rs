@@ -2,7 +2,7 @@
 //! runtime and the float reference, side by side.
 
 use anyhow::Result;
-use exporter::float_pfnn::FloatPfnn;
+use exporter::net::Net;
 use std::f64::consts::TAU;
 
 use crate::accuracy::sample_matrix;
@@ -25,7 +25,7 @@ pub struct DemoReport {
 
 /// Frames whose phase walks through the cycle (a gait cycle every 60
 /// frames) with inputs drawn from the model's normalisation statistics.
-pub fn run_demo(blob: &[u8], net: &FloatPfnn, frames: usize, seed: u64) -> Result<DemoReport> {
+pub fn run_demo(blob: &[u8], net: &Net, frames: usize, seed: u64) -> Result<DemoReport> {
     let (x, _) = sample_matrix(net, frames, 1.0, seed);
     let phases: Vec<f32> = (0..frames)
         .map(|i| ((i as f64 * TAU / 60.0) % TAU) as f32)

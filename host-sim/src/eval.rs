@@ -2,7 +2,7 @@
 //! the same inputs and phases.
 
 use anyhow::{anyhow, bail, Result};
-use exporter::float_pfnn::FloatPfnn;
+use exporter::net::Net;
 use phasegate::{Model, Phase, Runtime};
 
 use crate::npy::Matrix;
@@ -70,7 +70,7 @@ pub fn run_fixed(blob: &[u8], inputs: &Matrix<f32>, phases: &[f32]) -> Result<Fi
 }
 
 /// Runs the float reference (f64 inside, f32 out) on every row.
-pub fn run_reference(net: &FloatPfnn, inputs: &Matrix<f32>, phases: &[f32]) -> Result<Matrix<f32>> {
+pub fn run_reference(net: &Net, inputs: &Matrix<f32>, phases: &[f32]) -> Result<Matrix<f32>> {
     check_rows(inputs, phases)?;
     if inputs.cols != net.input_dim() {
         bail!(

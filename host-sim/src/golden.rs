@@ -4,7 +4,7 @@
 //! `cargo run --release -p host-sim -- golden --write tests/golden/default`.
 
 use anyhow::{bail, Context, Result};
-use exporter::export::export_pfnn;
+use exporter::export::export;
 use exporter::quantise::QuantOptions;
 use std::path::Path;
 
@@ -23,10 +23,10 @@ pub const INPUT_SEED: u64 = 0x601D_0001;
 pub fn write(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let net = default_model::generate();
-    exporter::npz::float_pfnn_to_npz(&net, &dir.join("model.npz"))?;
+    exporter::npz::pfnn_to_npz(&net, &dir.join("model.npz"))?;
     // Reload so the blob is made from exactly what the .npz holds.
-    let net = exporter::npz::float_pfnn_from_npz(&dir.join("model.npz"), net.mode)?;
-    let (blob, _) = export_pfnn(&net, None, &QuantOptions::default())?;
+    let net = exporter::npz::pfnn_from_npz(&dir.join("model.npz"), net.mode)?;
+    let (blob, _) = export(&net, None, &QuantOptions::default())?;
     exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
     let (x, p) = sample_matrix(&net, FRAMES, 1.0, INPUT_SEED);
     let run = run_fixed(&blob, &x, &p)?;

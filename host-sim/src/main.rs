@@ -3,7 +3,7 @@
 
 use anyhow::{anyhow, bail, Result};
 use clap::{Parser, Subcommand};
-use exporter::float_pfnn::{FloatPfnn, GatingMode};
+use exporter::net::{GatingMode, Net};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -152,12 +152,12 @@ enum Command {
     },
 }
 
-fn load_reference(path: &Path, mode: GatingMode) -> Result<FloatPfnn> {
+fn load_reference(path: &Path, mode: GatingMode) -> Result<Net> {
     if path.is_dir() {
         let tables = exporter::pfnn_dir::load_pfnn_dir_auto(path, None)?;
-        Ok(FloatPfnn::from_tables(&tables, mode).0)
+        Ok(Net::from_pfnn_tables(&tables, mode).0)
     } else {
-        exporter::npz::float_pfnn_from_npz(path, mode)
+        exporter::npz::pfnn_from_npz(path, mode)
     }
 }
 
@@ -225,9 +225,8 @@ fn run(cli: Cli) -> Result<()> {
                 ),
                 Some(dir) => {
                     let tables = exporter::pfnn_dir::load_pfnn_dir_auto(&dir, None)?;
-                    let (net, residual) = FloatPfnn::from_tables(&tables, GatingMode::Cubic);
-                    let (blob, _) =
-                        exporter::export::export_pfnn(&net, residual, &Default::default())?;
+                    let (net, residual) = Net::from_pfnn_tables(&tables, GatingMode::Cubic);
+                    let (blob, _) = exporter::export::export(&net, residual, &Default::default())?;
                     (
                         blob,
                         net,

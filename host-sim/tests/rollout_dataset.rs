@@ -23,10 +23,10 @@ fn model() -> PathBuf {
 /// The default model with every weight scaled by 0.05: its float loop,
 /// which diverges within a few frames on the default model's random
 /// weights, stays bounded.
-fn calm_model() -> exporter::float_pfnn::FloatPfnn {
+fn calm_model() -> exporter::net::Net {
     let mut net = host_sim::default_model::float_model().unwrap();
     for l in net.layers.iter_mut() {
-        for w in l.w.iter_mut() {
+        for w in l.as_dense_mut().unwrap().w.iter_mut() {
             w.mapv_inplace(|v| v * 0.05);
         }
     }
@@ -50,7 +50,7 @@ fn dataset_is_deterministic_readable_and_the_controllers_inputs() {
     let scripts = format!("idle,{}", script.display());
     let m = tmp.path().join("calm.npz");
     let net = calm_model();
-    exporter::npz::float_pfnn_to_npz(&net, &m).unwrap();
+    exporter::npz::pfnn_to_npz(&net, &m).unwrap();
     let run = |out: &Path| {
         let o = host_sim(&[
             "rollout-dataset",
@@ -83,8 +83,7 @@ fn dataset_is_deterministic_readable_and_the_controllers_inputs() {
 
     // Row by row, the float controller's own inputs and phases (f32).
     // (The model as the command read it: float32 in the .npz.)
-    let net =
-        exporter::npz::float_pfnn_from_npz(&m, exporter::float_pfnn::GatingMode::Cubic).unwrap();
+    let net = exporter::npz::pfnn_from_npz(&m, exporter::net::GatingMode::Cubic).unwrap();
     let moving = Script::load(script.to_str().unwrap()).unwrap();
     let mut ctl = reference_f64(&net).unwrap();
     for f in 0..60 {
@@ -126,11 +125,12 @@ fn dataset_errors_are_one_line_and_write_nothing() {
     let keep = net.output_dim() - 1;
     net.ymean = net.ymean.slice(ndarray::s![..keep]).to_owned();
     net.ystd = net.ystd.slice(ndarray::s![..keep]).to_owned();
-    for (w, b) in net.layers[2].w.iter_mut().zip(net.layers[2].b.iter_mut()) {
+    let last = net.layers[2].as_dense_mut().unwrap();
+    for (w, b) in last.w.iter_mut().zip(last.b.iter_mut()) {
         *w = w.slice(ndarray::s![..keep, ..]).to_owned();
         *b = b.slice(ndarray::s![..keep]).to_owned();
     }
-    exporter::npz::float_pfnn_to_npz(&net, &small).unwrap();
+    exporter::npz::pfnn_to_npz(&net, &small).unwrap();
     let (m, small) = (m.to_str().unwrap(), small.to_str().unwrap());
     let cases: [(&str, &[&str], &str); 4] = [
         (m, &["--frames", "0"], "--frames must be at least 1"),

@@ -15,7 +15,7 @@
 
 use std::path::PathBuf;
 
-use exporter::blob_writer::{encode, frame, BlobLayer, BlobModel};
+use exporter::encode::{encode, frame, QKind, QLayer, QModel};
 use phasegate::blob::{
     crc32, AccWidth, Activation, Gating, Header, LayerDesc, LayerOp, ModelKind, Requant, Section,
     WeightFormat, FORMAT_VERSION, MAGIC, MAX_LAYERS, PAYLOAD_ALIGN, PREAMBLE_LEN,
@@ -59,13 +59,13 @@ fn empty() -> Section {
 
 /// The document's example model: no phase, two inputs, one int8 dense
 /// neuron with a 32-bit accumulator and no activation.
-fn example_model() -> BlobModel {
-    BlobModel {
-        kind: ModelKind::Mlp,
+fn example_model() -> QModel {
+    QModel {
+        kind: QKind::Model(ModelKind::Mlp),
         gating: Gating::Single,
         input_stage: vec![(0.0, 256.0), (1.0, 128.0)],
         output_stage: vec![(0.0078125, -2.5)],
-        layers: vec![BlobLayer {
+        layers: vec![QLayer {
             desc: LayerDesc {
                 op: LayerOp::Dense,
                 in_dim: 2,
@@ -87,6 +87,7 @@ fn example_model() -> BlobModel {
                 post_shift: 47,
                 frac: 0,
             }],
+            cp: None,
         }],
     }
 }
@@ -308,7 +309,7 @@ fn padded_varints_load_and_overlong_ones_do_not() {
 }
 
 /// Frames raw header bytes exactly as the document's preamble section says,
-/// independently of `exporter::blob_writer::frame`.
+/// independently of `exporter::encode::frame`.
 fn frame_raw(version: u16, header: &[u8], payload: &[u8]) -> Vec<u8> {
     let mut out = b"PGMB".to_vec();
     out.extend(version.to_le_bytes());
@@ -732,9 +733,9 @@ fn layer(
     w: WeightFormat,
     acc: AccWidth,
     act: Activation,
-) -> BlobLayer {
+) -> QLayer {
     let n = usize::from(experts) * usize::from(out_dim);
-    BlobLayer {
+    QLayer {
         desc: LayerDesc {
             op: LayerOp::Dense,
             in_dim,
@@ -760,6 +761,7 @@ fn layer(
                 frac: (i % 16) as u8,
             })
             .collect(),
+        cp: None,
     }
 }
 
@@ -777,8 +779,8 @@ fn the_spec_decoder_agrees_with_the_runtime_on_real_blobs() {
         (Gating::CatmullRom { points: 4 }, 4),
     ];
     for (gating, experts) in gatings {
-        let m = BlobModel {
-            kind: ModelKind::Pfnn,
+        let m = QModel {
+            kind: QKind::Model(ModelKind::Pfnn),
             gating,
             input_stage: (0..200)
                 .map(|i| (i as f32, 1.0 / (1.0 + i as f32)))

@@ -2,17 +2,18 @@
 //! blob, loader proof and fixed-point runtime against the float reference;
 //! the loader's refusals; CP-ALS on tensors of known rank.
 
-use exporter::blob_writer::frame;
 use exporter::cp::als::{cp_als, AlsOptions, CpFactors};
-use exporter::cp::float::{CpLayer, FloatNet, NetLayer};
 use exporter::cp::import::{read_cp_net, write_cp_net};
 use exporter::cp::report::{output_error, run_blob, run_float};
-use exporter::cp::{export_net, quantise_net};
-use exporter::float_pfnn::{ExpertLayer, GatingMode};
+use exporter::encode::frame;
+use exporter::export::export;
+use exporter::net::{CpLayer, Net, NetLayer};
+use exporter::net::{ExpertLayer, GatingMode};
+use exporter::quantise::quantise_net;
 use exporter::quantise::QuantOptions;
 use ndarray::{Array1, Array2};
 use phasegate::blob::{crc32, Framed, LayerOp, WeightFormat, PAYLOAD_ALIGN, PREAMBLE_LEN};
-use phasegate::kernels::cp::MidRecord;
+use phasegate::ops::cp::MidRecord;
 use phasegate::{Error, Model, Phase, Runtime};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -36,10 +37,10 @@ fn dense_layer(rng: &mut ChaCha8Rng, out: usize, inp: usize, experts: usize) -> 
 }
 
 /// A small PFNN-shaped dense network (cubic gating, 4 control points).
-fn dense_net(seed: u64, dims: [usize; 4]) -> FloatNet {
+fn dense_net(seed: u64, dims: [usize; 4]) -> Net {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let [inp, h0, h1, out] = dims;
-    FloatNet {
+    Net {
         mode: GatingMode::Cubic,
         xmean: Array1::from_shape_fn(inp, |_| normal(&mut rng)),
         xstd: Array1::from_shape_fn(inp, |_| rng.gen_range(0.2..3.0)),
@@ -53,7 +54,7 @@ fn dense_net(seed: u64, dims: [usize; 4]) -> FloatNet {
     }
 }
 
-fn decompose(net: &FloatNet, rank: usize, layers: &[usize]) -> FloatNet {
+fn decompose(net: &Net, rank: usize, layers: &[usize]) -> Net {
     let mut cp = net.clone();
     for &l in layers {
         let NetLayer::Dense(d) = &net.layers[l] else {
@@ -74,7 +75,7 @@ fn decompose(net: &FloatNet, rank: usize, layers: &[usize]) -> FloatNet {
     cp
 }
 
-fn samples(net: &FloatNet, n: usize, seed: u64) -> (Vec<Vec<f64>>, Vec<f64>) {
+fn samples(net: &Net, n: usize, seed: u64) -> (Vec<Vec<f64>>, Vec<f64>) {
     let s =
         exporter::calibrate::normal_inputs(&net.xmean.to_vec(), &net.xstd.to_vec(), n, 1.0, seed);
     (s.inputs, s.phases)
@@ -91,8 +92,9 @@ fn cp_blobs_track_their_float_network() {
         let y_float = run_float(&net, &xs, &ps);
         let mut errs = Vec::new();
         for w in [WeightFormat::I8, WeightFormat::I16] {
-            let (blob, report) = export_net(
+            let (blob, report) = export(
                 &net,
+                None,
                 &QuantOptions {
                     weights: w,
                     ..QuantOptions::default()
@@ -117,7 +119,7 @@ fn cp_blobs_track_their_float_network() {
 fn header_figures_count_the_factors() {
     let dense = dense_net(3, [10, 8, 8, 6]);
     let net = decompose(&dense, 20, &[1]);
-    let (blob, _) = export_net(&net, &QuantOptions::default()).unwrap();
+    let (blob, _) = export(&net, None, &QuantOptions::default()).unwrap();
     let m = Model::from_bytes(&blob).unwrap();
     let h = m.header();
     assert!(matches!(h.layers[1].op, LayerOp::Cp { rank: 20, .. }));
@@ -142,7 +144,7 @@ fn header_figures_count_the_factors() {
 fn cp_inference_is_deterministic_and_phase_continuous() {
     let dense = dense_net(4, [16, 24, 24, 8]);
     let net = decompose(&dense, 6, &[0, 1, 2]);
-    let (blob, _) = export_net(&net, &QuantOptions::default()).unwrap();
+    let (blob, _) = export(&net, None, &QuantOptions::default()).unwrap();
     let mut rt: Runtime<'_, 64> = Runtime::new(Model::from_bytes(&blob).unwrap()).unwrap();
     let x: Vec<f32> = net.xmean.iter().map(|&v| v as f32 + 0.3).collect();
     let mut prev: Option<Vec<f32>> = None;
@@ -182,7 +184,7 @@ fn reframe(mut header: phasegate::Header, payload: &[u8]) -> Vec<u8> {
 fn loader_refuses_bad_cp_layers() {
     let dense = dense_net(5, [12, 10, 10, 6]);
     let net = decompose(&dense, 5, &[1]);
-    let (blob, _) = export_net(&net, &QuantOptions::default()).unwrap();
+    let (blob, _) = export(&net, None, &QuantOptions::default()).unwrap();
     assert!(Model::from_bytes(&blob).is_ok());
     let (header, payload) = split(&blob);
     let LayerOp::Cp {
@@ -275,7 +277,7 @@ fn loader_refuses_bad_cp_layers() {
             *w *= 100;
         }
     }
-    let bad = exporter::cp::encode::encode_net(&m).unwrap();
+    let bad = exporter::encode::encode(&m).unwrap();
     assert_eq!(
         Model::from_bytes(&bad).unwrap_err(),
         Error::AccumulatorOverflow { layer: 1, row: 0 }
@@ -294,8 +296,8 @@ fn imported_factors_give_the_same_blob() {
     write_cp_net(&net, &p).unwrap();
     let back = read_cp_net(&p, GatingMode::Cubic).unwrap();
     // float32 round trip
-    let (a, _) = export_net(&back, &QuantOptions::default()).unwrap();
-    let (b, _) = export_net(&back, &QuantOptions::default()).unwrap();
+    let (a, _) = export(&back, None, &QuantOptions::default()).unwrap();
+    let (b, _) = export(&back, None, &QuantOptions::default()).unwrap();
     assert_eq!(a, b);
     let (xs, ps) = samples(&net, 50, 9);
     let e = output_error(

@@ -4,11 +4,11 @@
 //! base. Skipped, with a message, where the weights are absent.
 
 use exporter::cp::als::AlsOptions;
-use exporter::cp::export_net;
-use exporter::cp::float::{Adapter, CpLayer, FloatNet, NetLayer};
 use exporter::cp::report::{decompose_all, output_error, run_blob, run_float};
-use exporter::export::export_pfnn;
-use exporter::float_pfnn::{FloatPfnn, GatingMode};
+use exporter::export::export;
+use exporter::net::{Adapter, CpLayer, ExpertLayer, Net, NetLayer};
+
+use exporter::net::GatingMode;
 use exporter::quantise::QuantOptions;
 use exporter::style::build_style;
 use ndarray::{Array1, Array2};
@@ -30,9 +30,9 @@ fn pfnn_dir() -> Option<PathBuf> {
     }
 }
 
-fn load(dir: &Path) -> FloatPfnn {
+fn load(dir: &Path) -> Net {
     let t = exporter::pfnn_dir::load_pfnn_dir(dir).unwrap();
-    FloatPfnn::from_tables(&t, GatingMode::Cubic).0
+    Net::from_pfnn_tables(&t, GatingMode::Cubic).0
 }
 
 #[test]
@@ -51,7 +51,7 @@ fn post_hoc_cp_of_the_real_pfnn_is_lossy_and_its_blobs_are_faithful() {
     let s =
         exporter::calibrate::normal_inputs(&dense.xmean.to_vec(), &dense.xstd.to_vec(), 96, 1.0, 7);
     let (ym, ys) = (dense.ymean.to_vec(), dense.ystd.to_vec());
-    let y_dense = run_float(&FloatNet::from_pfnn(&dense), &s.inputs, &s.phases);
+    let y_dense = run_float(&dense.clone(), &s.inputs, &s.phases);
     let y_cp = run_float(&net, &s.inputs, &s.phases);
     let e = output_error(&y_cp, &y_dense, &ym, &ys);
     println!(
@@ -70,8 +70,9 @@ fn post_hoc_cp_of_the_real_pfnn_is_lossy_and_its_blobs_are_faithful() {
         (WeightFormat::I16, 0.05, 4_830_592),
         (WeightFormat::I8, 1.5, 2_423_312),
     ] {
-        let (blob, rep) = export_net(
+        let (blob, rep) = export(
             &net,
+            None,
             &QuantOptions {
                 weights: w,
                 ..QuantOptions::default()
@@ -95,8 +96,8 @@ fn post_hoc_cp_of_the_real_pfnn_is_lossy_and_its_blobs_are_faithful() {
 fn a_style_attaches_to_the_real_base_and_tracks_its_float_reference() {
     let Some(dir) = pfnn_dir() else { return };
     let dense = load(&dir);
-    let (base, _) = export_pfnn(&dense, None, &QuantOptions::default()).unwrap();
-    let net = FloatNet::from_pfnn(&dense);
+    let (base, _) = export(&dense, None, &QuantOptions::default()).unwrap();
+    let net = dense.clone();
     let (h, r) = (512, 30);
     let f =
         |i: usize, j: usize, s: f64| s * (((i * 7919 + j * 104_729) % 1000) as f64 / 500.0 - 1.0);
@@ -124,4 +125,64 @@ fn a_style_attaches_to_the_real_base_and_tracks_its_float_reference() {
         rep.fixed_vs_float.rms < 1.5 * rep.base_fixed_vs_float.rms + 0.05,
         "{rep:?}"
     );
+}
+
+/// The CP form of a dense layer that is exactly equal to it: one
+/// component per (expert, row), `A` the identity on rows, the cores one-hot
+/// on experts and `B` the expert's row.
+fn exact_cp(l: &ExpertLayer) -> CpLayer {
+    let (out, inp) = l.dim();
+    let k = l.experts();
+    let rank = k * out;
+    CpLayer {
+        a: Array2::from_shape_fn((out, rank), |(i, r)| f64::from(u8::from(r % out == i))),
+        b: Array2::from_shape_fn((inp, rank), |(j, r)| l.w[r / out][(r % out, j)]),
+        d: Array2::from_shape_fn((k, rank), |(e, r)| f64::from(u8::from(r / out == e))),
+        bias: l.b.clone(),
+    }
+}
+
+/// One quantiser for every route: the dense layers of a network that has a
+/// CP layer get the int8 error they get in an all-dense export. Layer 1 of
+/// the real PFNN is replaced by its exact CP form, so both networks compute
+/// the same function; each dense layer's share is measured alone (that
+/// layer int8, every other layer int16) against the float network.
+#[test]
+fn dense_layers_beside_a_cp_layer_keep_the_dense_int8_error() {
+    let Some(dir) = pfnn_dir() else { return };
+    let dense = load(&dir);
+    let mut cp1 = dense.clone();
+    cp1.layers[1] = NetLayer::Cp(exact_cp(dense.layers[1].as_dense().unwrap()));
+    let s = exporter::calibrate::normal_inputs(
+        &dense.xmean.to_vec(),
+        &dense.xstd.to_vec(),
+        128,
+        1.0,
+        11,
+    );
+    let (ym, ys) = (dense.ymean.to_vec(), dense.ystd.to_vec());
+    let y_float = run_float(&dense, &s.inputs, &s.phases);
+    let e = output_error(&run_float(&cp1, &s.inputs, &s.phases), &y_float, &ym, &ys);
+    assert!(e.max_abs < 1e-9, "the exact CP form differs: {e:?}");
+    let int8_share = |net: &Net, layer: usize| {
+        let opts = QuantOptions {
+            weights: WeightFormat::I16,
+            layer_weights: [(layer, WeightFormat::I8)].into(),
+            ..QuantOptions::default()
+        };
+        let (blob, rep) = export(net, None, &opts).unwrap();
+        assert_eq!(rep.weight_format, "mixed");
+        let fixed = run_blob(&blob, &s.inputs, &s.phases).unwrap();
+        output_error(&fixed, &y_float, &ym, &ys)
+    };
+    for layer in [0, 2] {
+        let d = int8_share(&dense, layer);
+        let c = int8_share(&cp1, layer);
+        println!(
+            "layer {layer} int8 alone: all-dense export rms {:.4} max {:.3}; beside a CP layer 1 rms {:.4} max {:.3}",
+            d.rms, d.max_abs, c.rms, c.max_abs
+        );
+        let ratio = c.rms / d.rms;
+        assert!((0.9..1.1).contains(&ratio), "layer {layer}: {c:?} vs {d:?}");
+    }
 }

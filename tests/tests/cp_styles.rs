@@ -3,10 +3,9 @@
 //! between frames, and the refusals (another base, wrong layer, full bank,
 //! damaged blobs).
 
-use exporter::cp::encode::{encode_net, QKind};
-use exporter::cp::float::{Adapter, CpLayer, DiagLayer, FloatNet, NetLayer};
-use exporter::export::export_pfnn;
-use exporter::float_pfnn::{ExpertLayer, FloatPfnn, GatingMode};
+use exporter::encode::{encode, QKind};
+use exporter::export::export;
+use exporter::net::{Adapter, CpLayer, DiagLayer, ExpertLayer, GatingMode, Net, NetLayer};
 use exporter::quantise::QuantOptions;
 use exporter::style::{build_style, quantise_adapter, run_styled};
 use ndarray::{Array1, Array2};
@@ -36,9 +35,9 @@ fn dense_layer(rng: &mut ChaCha8Rng, out: usize, inp: usize) -> ExpertLayer {
     }
 }
 
-fn base_pfnn(seed: u64) -> FloatPfnn {
+fn base_pfnn(seed: u64) -> Net {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    FloatPfnn {
+    Net {
         mode: GatingMode::Cubic,
         xmean: Array1::from_shape_fn(IN, |_| normal(&mut rng)),
         xstd: Array1::from_shape_fn(IN, |_| rng.gen_range(0.2..3.0)),
@@ -48,7 +47,10 @@ fn base_pfnn(seed: u64) -> FloatPfnn {
             dense_layer(&mut rng, HID, IN),
             dense_layer(&mut rng, HID, HID),
             dense_layer(&mut rng, OUT, HID),
-        ],
+        ]
+        .into_iter()
+        .map(NetLayer::Dense)
+        .collect(),
     }
 }
 
@@ -82,20 +84,20 @@ fn adapter(form: &str, seed: u64) -> Adapter {
 }
 
 struct Fixture {
-    net: FloatNet,
+    net: Net,
     blob: Vec<u8>,
 }
 
 fn fixture(seed: u64) -> Fixture {
     let pfnn = base_pfnn(seed);
-    let (blob, _) = export_pfnn(&pfnn, None, &QuantOptions::default()).unwrap();
+    let (blob, _) = export(&pfnn, None, &QuantOptions::default()).unwrap();
     Fixture {
-        net: FloatNet::from_pfnn(&pfnn),
+        net: pfnn.clone(),
         blob,
     }
 }
 
-fn samples(net: &FloatNet, n: usize) -> (Vec<Vec<f64>>, Vec<f64>) {
+fn samples(net: &Net, n: usize) -> (Vec<Vec<f64>>, Vec<f64>) {
     let s = exporter::calibrate::normal_inputs(&net.xmean.to_vec(), &net.xstd.to_vec(), n, 1.0, 77);
     (s.inputs, s.phases)
 }
@@ -330,7 +332,7 @@ fn mismatched_styles_are_refused_clearly() {
     if let QKind::Style { layer, .. } = &mut q.kind {
         *layer = 2;
     }
-    let wrong_layer = encode_net(&q).unwrap();
+    let wrong_layer = encode(&q).unwrap();
     let mut q = quantise_adapter(
         &m1,
         &f1.net,
@@ -340,7 +342,7 @@ fn mismatched_styles_are_refused_clearly() {
     )
     .unwrap();
     q.layers[0].requant[0].frac ^= 1;
-    let wrong_formats = encode_net(&q).unwrap();
+    let wrong_formats = encode(&q).unwrap();
     let mut rt1: StyledRuntime<'_, 64, 128, 4> = StyledRuntime::new(m1.clone()).unwrap();
     assert_eq!(
         rt1.add_style(Style::from_bytes(&wrong_layer).unwrap())
@@ -449,7 +451,7 @@ fn damaged_style_blobs_are_refused() {
         &QuantOptions::default(),
     )
     .unwrap();
-    let named = encode_net(&q).unwrap();
+    let named = encode(&q).unwrap();
     let framed = phasegate::blob::Framed::parse(&named, true).unwrap();
     let mut header = framed.header.clone();
     let mut payload = framed.payload.to_vec();
@@ -459,7 +461,7 @@ fn damaged_style_blobs_are_refused() {
     assert_eq!(&payload[name.offset as usize..][..2], b"ok");
     payload[name.offset as usize..][..2].copy_from_slice(&[0xC3, 0x28]);
     header.payload_crc = phasegate::blob::crc32(&payload);
-    let bad = exporter::blob_writer::frame(&header, &payload);
+    let bad = exporter::encode::frame(&header, &payload);
     assert_eq!(
         Style::from_bytes(&bad).unwrap_err(),
         Error::UnsupportedParameter {

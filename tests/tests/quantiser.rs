@@ -1,7 +1,7 @@
 //! Quantiser regressions found by review, checked through the runtime.
 
-use exporter::export::export_pfnn;
-use exporter::float_pfnn::{ExpertLayer, FloatPfnn, GatingMode};
+use exporter::export::export;
+use exporter::net::{ExpertLayer, GatingMode, Net, NetLayer};
 use exporter::quantise::QuantOptions;
 use ndarray::{Array1, Array2};
 use phasegate::blob::WeightFormat;
@@ -32,7 +32,7 @@ fn tiny_hidden_rows_stay_in_q15() {
         w: vec![w.clone(); 4],
         b: vec![b.clone(); 4],
     };
-    let net = FloatPfnn {
+    let net = Net {
         mode: GatingMode::Cubic,
         xmean: Array1::zeros(4),
         xstd: Array1::ones(4),
@@ -42,10 +42,13 @@ fn tiny_hidden_rows_stay_in_q15() {
             experts(&l0, &b0),
             experts(&l1, &Array1::zeros(4)),
             experts(&l2, &Array1::zeros(2)),
-        ],
+        ]
+        .into_iter()
+        .map(NetLayer::Dense)
+        .collect(),
     };
     for weights in [WeightFormat::I16, WeightFormat::I8] {
-        let (blob, _) = export_pfnn(
+        let (blob, _) = export(
             &net,
             None,
             &QuantOptions {

@@ -98,11 +98,11 @@ fn float_reference_matches_independent_numpy() {
     let tmp = tempfile::tempdir().unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/reference_check.py");
     for (mode, name) in [
-        (exporter::float_pfnn::GatingMode::Cubic, "cubic"),
-        (exporter::float_pfnn::GatingMode::Linear, "linear"),
-        (exporter::float_pfnn::GatingMode::Constant, "constant"),
+        (exporter::net::GatingMode::Cubic, "cubic"),
+        (exporter::net::GatingMode::Linear, "linear"),
+        (exporter::net::GatingMode::Constant, "constant"),
     ] {
-        let (net, _) = exporter::float_pfnn::FloatPfnn::from_tables(&tables, mode);
+        let (net, _) = exporter::net::Net::from_pfnn_tables(&tables, mode);
         let (x, p) = sample_matrix(&net, 64, 1.0, 99);
         let y = host_sim::eval::run_reference(&net, &x, &p).unwrap();
         let (xp, pp, yp) = (

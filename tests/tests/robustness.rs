@@ -4,7 +4,7 @@
 //! Blobs used:
 //! * `quantised(..)`: a random, small PFNN-shaped float network (20 -> 24 ->
 //!   24 -> 12, four Catmull-Rom control points) through the real quantiser
-//!   and encoder (`exporter::export::export_pfnn`), int8 and int16 weights;
+//!   and encoder (`exporter::export::export`), int8 and int16 weights;
 //! * `hand_model()`: a hand-made three-layer model with a five-point
 //!   Catmull-Rom gating, both weight formats and both accumulator widths,
 //!   an ungated last layer;
@@ -12,9 +12,9 @@
 //!   and style blobs (CP, diagonal and full adapters) for a small dense
 //!   base, all through the real exporter.
 
-use exporter::blob_writer::{encode, frame, BlobLayer, BlobModel};
-use exporter::export::export_pfnn;
-use exporter::float_pfnn::{ExpertLayer, FloatPfnn, GatingMode};
+use exporter::encode::{encode, frame, QKind, QLayer, QModel};
+use exporter::export::export;
+use exporter::net::{ExpertLayer, GatingMode, Net, NetLayer};
 use exporter::quantise::QuantOptions;
 use ndarray::{Array1, Array2};
 use phasegate::blob::{
@@ -50,10 +50,10 @@ fn expert_layer(rng: &mut ChaCha8Rng, inp: usize, out: usize) -> ExpertLayer {
 
 /// A random PFNN-shaped float network: 20 inputs, two hidden layers of 24,
 /// 12 outputs, 4 control points.
-fn float_net(seed: u64) -> FloatPfnn {
+fn float_net(seed: u64) -> Net {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let (i, h, o) = (20, 24, 12);
-    FloatPfnn {
+    Net {
         mode: GatingMode::Cubic,
         xmean: vector(&mut rng, i, -3.0, 3.0),
         xstd: vector(&mut rng, i, 0.2, 4.0),
@@ -63,7 +63,10 @@ fn float_net(seed: u64) -> FloatPfnn {
             expert_layer(&mut rng, i, h),
             expert_layer(&mut rng, h, h),
             expert_layer(&mut rng, h, o),
-        ],
+        ]
+        .into_iter()
+        .map(NetLayer::Dense)
+        .collect(),
     }
 }
 
@@ -74,7 +77,7 @@ fn quantised(weights: WeightFormat) -> Vec<u8> {
         calibration_samples: 128,
         ..QuantOptions::default()
     };
-    export_pfnn(&float_net(7), None, &opts).unwrap().0
+    export(&float_net(7), None, &opts).unwrap().0
 }
 
 fn desc(
@@ -102,14 +105,14 @@ fn desc(
 
 /// Catmull-Rom over 5 points; layer 0 int16/i32/ELU 6 -> 8, layer 1
 /// int8/i64/ELU 8 -> 7, layer 2 ungated int8/i32/identity 7 -> 5.
-fn hand_model() -> BlobModel {
+fn hand_model() -> QModel {
     use AccWidth::*;
     use Activation::*;
     use WeightFormat::*;
     let mut rng = ChaCha8Rng::seed_from_u64(42);
     let mut layer = |d: LayerDesc, wmax: i32, bmax: i64, pre: u8, post: u8| {
         let rows = usize::from(d.experts) * usize::from(d.out_dim);
-        BlobLayer {
+        QLayer {
             desc: d,
             weights: (0..rows * usize::from(d.in_dim))
                 .map(|_| rng.gen_range(-wmax..=wmax))
@@ -123,6 +126,7 @@ fn hand_model() -> BlobModel {
                     frac: 8 + (i % 4) as u8,
                 })
                 .collect(),
+            cp: None,
         }
     };
     let layers = vec![
@@ -130,8 +134,8 @@ fn hand_model() -> BlobModel {
         layer(desc(8, 7, 5, I8, I64, Elu), 127, 1 << 40, 20, 40),
         layer(desc(7, 5, 1, I8, I32, Identity), 127, 1 << 20, 4, 36),
     ];
-    BlobModel {
-        kind: ModelKind::Pfnn,
+    QModel {
+        kind: QKind::Model(ModelKind::Pfnn),
         gating: Gating::CatmullRom { points: 5 },
         input_stage: (0..6)
             .map(|i| (i as f32 - 2.0, 100.0 * (i + 1) as f32))
@@ -1227,7 +1231,7 @@ fn saturating_blob_pins_its_outputs() {
     let mut layers = Vec::new();
     for (i, (inp, out)) in [(6u16, 8u16), (8, 4)].into_iter().enumerate() {
         let rows = usize::from(experts) * usize::from(out);
-        layers.push(BlobLayer {
+        layers.push(QLayer {
             desc: desc(
                 inp,
                 out,
@@ -1251,10 +1255,11 @@ fn saturating_blob_pins_its_outputs() {
                 };
                 usize::from(out)
             ],
+            cp: None,
         });
     }
-    let m = BlobModel {
-        kind: ModelKind::Pfnn,
+    let m = QModel {
+        kind: QKind::Model(ModelKind::Pfnn),
         gating: Gating::CatmullRom { points: experts },
         input_stage: vec![(0.0, 1.0); 6],
         output_stage: vec![(1.0, 0.0); 4],
@@ -1302,12 +1307,12 @@ fn i32_row_at_the_bound_does_not_wrap() {
         AccWidth::I32,
         Activation::Identity,
     );
-    let m = BlobModel {
-        kind: ModelKind::Mlp,
+    let m = QModel {
+        kind: QKind::Model(ModelKind::Mlp),
         gating: Gating::Single,
         input_stage: vec![(0.0, 1.0); 2],
         output_stage: vec![(1.0, 0.0); 2],
-        layers: vec![BlobLayer {
+        layers: vec![QLayer {
             desc: d,
             // Row 0: sum |w| = 65535, the largest that loads.
             weights: vec![-32768, -32767, 32767, 32767],
@@ -1322,6 +1327,7 @@ fn i32_row_at_the_bound_does_not_wrap() {
                 };
                 2
             ],
+            cp: None,
         }],
     };
     let blob = encode(&m).unwrap();
@@ -1603,12 +1609,12 @@ fn cp_and_styles() -> CpAndStyles {
         calibration_samples: 128,
         ..QuantOptions::default()
     };
-    let cp = exporter::cp::export_net(&synthetic::cp_net(3, 20, 24, 12, 6), &opts)
+    let cp = exporter::export::export(&synthetic::cp_net(3, 20, 24, 12, 6), None, &opts)
         .unwrap()
         .0;
     let pfnn = synthetic::pfnn_base(4, 20, 24, 12);
-    let base = export_pfnn(&pfnn, None, &opts).unwrap().0;
-    let net = exporter::cp::float::FloatNet::from_pfnn(&pfnn);
+    let base = export(&pfnn, None, &opts).unwrap().0;
+    let net = pfnn.clone();
     let styles = ["cp", "diagonal", "full"]
         .iter()
         .enumerate()

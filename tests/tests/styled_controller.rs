@@ -7,7 +7,7 @@
 //! says nothing about smoothness: `host-sim style-demo` measures that on the
 //! real PFNN.)
 
-use exporter::cp::float::{Adapter, CpLayer, FloatNet, NetLayer};
+use exporter::net::{Adapter, CpLayer, NetLayer};
 use exporter::quantise::QuantOptions;
 use exporter::style::build_style;
 use host_sim::default_model::{self, HIDDEN};
@@ -39,7 +39,7 @@ fn adapter(seed: u64) -> Adapter {
 }
 
 fn style_blobs() -> Vec<Vec<u8>> {
-    let net = FloatNet::from_pfnn(&default_model::float_model().unwrap());
+    let net = default_model::float_model().unwrap();
     (0..2)
         .map(|i| {
             build_style(

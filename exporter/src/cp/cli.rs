@@ -11,13 +11,13 @@ use crate::cp::als::{AlsOptions, AlsResult};
 use crate::cp::distill::{
     distill, DistillData, DistillOptions, DistillReport, DEFAULT_NORMAL_FRACTION,
 };
-use crate::cp::float::{CpLayer, FloatNet, NetLayer};
 use crate::cp::import::{read_cp_net, write_cp_net};
 use crate::cp::report::{
     measure_ranks, output_error, run_blob, run_float, tables_error, OutputError,
 };
-use crate::cp::{export_net, NetExportReport};
-use crate::float_pfnn::{ExpertLayer, FloatPfnn, GatingMode};
+use crate::export::{export, ExportReport};
+use crate::net::{CpLayer, Net, NetLayer};
+use crate::net::{ExpertLayer, GatingMode};
 use crate::quantise::QuantOptions;
 
 fn parse_bits(s: &str) -> Result<WeightFormat, String> {
@@ -29,12 +29,12 @@ fn parse_bits(s: &str) -> Result<WeightFormat, String> {
 }
 
 /// Loads a dense float PFNN from a demo weight directory or a PFNN-shaped `.npz`.
-pub fn load_dense(path: &Path, mode: GatingMode) -> Result<FloatPfnn> {
+pub fn load_dense(path: &Path, mode: GatingMode) -> Result<Net> {
     if path.is_dir() {
         let tables = crate::pfnn_dir::load_pfnn_dir_auto(path, None)?;
-        Ok(FloatPfnn::from_tables(&tables, mode).0)
+        Ok(Net::from_pfnn_tables(&tables, mode).0)
     } else {
-        crate::npz::float_pfnn_from_npz(path, mode)
+        crate::npz::pfnn_from_npz(path, mode)
     }
 }
 
@@ -169,7 +169,7 @@ pub struct CpExportReport {
     /// on every --eval-data set (the figures above are on normal samples).
     pub rollout_sets: Vec<RolloutSetError>,
     /// The blob.
-    pub blob: NetExportReport,
+    pub blob: ExportReport,
 }
 
 /// Decomposes `layer` at the smallest rank in `1..=max_rank` whose
@@ -250,10 +250,12 @@ pub fn cp(args: &CpArgs) -> Result<()> {
     // Read the data sets before the (long) decomposition, so a bad file
     // fails at once.
     let data = DistillData::load(&args.distill_data, &args.eval_data, dense.input_dim())?;
-    let mut net = FloatNet::from_pfnn(&dense);
+    let mut net = dense.clone();
     let mut decomposed = Vec::new();
     for &l in &chosen {
-        let layer = &dense.layers[l];
+        let layer = dense.layers[l]
+            .as_dense()
+            .with_context(|| format!("layer {l} of {} is not dense", args.weights.display()))?;
         let (cp, res) = match (args.cp_rank, args.cp_max_error) {
             (Some(r), _) if r > 0 => CpLayer::decompose(layer, r, &als),
             (Some(_), _) => bail!("--cp-rank must be at least 1"),
@@ -283,7 +285,7 @@ pub fn cp(args: &CpArgs) -> Result<()> {
         1.0,
         0xE7A1,
     );
-    let dense_net = FloatNet::from_pfnn(&dense);
+    let dense_net = dense.clone();
     let y_dense = run_float(&dense_net, &s.inputs, &s.phases);
     let (ym, ys) = (dense.ymean.to_vec(), dense.ystd.to_vec());
     let mut sets: Vec<(String, &Samples)> = Vec::new();
@@ -333,7 +335,7 @@ pub fn cp(args: &CpArgs) -> Result<()> {
         weights: args.weight_bits,
         ..QuantOptions::default()
     };
-    let (blob, blob_report) = export_net(&net, &opts)?;
+    let (blob, blob_report) = export(&net, None, &opts)?;
     let y_fixed = run_blob(&blob, &s.inputs, &s.phases)?;
     let mut rollout_sets = Vec::new();
     for (((name, e), yd), b) in sets.iter().zip(&sets_dense).zip(sets_before) {
@@ -509,7 +511,7 @@ pub fn cp_import(args: &CpImportArgs) -> Result<()> {
         weights: args.weight_bits,
         ..QuantOptions::default()
     };
-    let (blob, report) = export_net(&net, &opts)?;
+    let (blob, report) = export(&net, None, &opts)?;
     write_both(&blob, &report, &args.output, args.report.as_deref())?;
     println!(
         "wrote {} ({} bytes, {} MACs/frame; layers: {})",

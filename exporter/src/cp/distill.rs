@@ -1,4 +1,4 @@
-//! A small batched trainer for [`FloatNet`]s (hand-written backward pass,
+//! A small batched trainer for [`Net`]s (hand-written backward pass,
 //! Adam), used to distil CP factors towards a dense model's outputs
 //! (`exporter cp --distill STEPS`) and to fit residual adapters with the
 //! base frozen (the style demonstration).
@@ -21,8 +21,7 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 
 use crate::calibrate::{normal_inputs, Samples};
-use crate::cp::float::{Adapter, FloatNet, NetLayer};
-use crate::float_pfnn::FloatPfnn;
+use crate::net::{Adapter, Net, NetLayer};
 
 /// Normalised inputs, gates and normalised targets of some samples.
 #[derive(Clone, Debug)]
@@ -57,11 +56,7 @@ impl Dataset {
 }
 
 /// Normalised inputs and the gate matrix of raw samples.
-pub fn inputs_and_gates(
-    net: &FloatNet,
-    xs: &[Vec<f64>],
-    phases: &[f64],
-) -> (Array2<f64>, Array2<f64>) {
+pub fn inputs_and_gates(net: &Net, xs: &[Vec<f64>], phases: &[f64]) -> (Array2<f64>, Array2<f64>) {
     let (n, d, k) = (xs.len(), net.input_dim(), net.experts());
     let mut x = Array2::zeros((n, d));
     let mut g = Array2::zeros((n, k));
@@ -221,7 +216,7 @@ fn elu_grad(pre: &Array2<f64>) -> Array2<f64> {
 
 /// Batched forward pass; returns the normalised outputs and the caches.
 fn forward(
-    net: &FloatNet,
+    net: &Net,
     adapters: &[(&Adapter, f64)],
     x: &Array2<f64>,
     g: &Array2<f64>,
@@ -245,7 +240,7 @@ fn forward(
         let next = if l == last {
             pre.clone()
         } else {
-            pre.mapv(crate::float_pfnn::elu)
+            pre.mapv(crate::net::elu)
         };
         caches.push(Cache { x: h, pre, cp });
         ad_caches.push(ac);
@@ -333,7 +328,7 @@ pub struct TrainReport {
 }
 
 /// Mean squared error of `net` (with adapters) on `data`.
-pub fn loss(net: &FloatNet, adapters: &[(&Adapter, f64)], data: &Dataset) -> f64 {
+pub fn loss(net: &Net, adapters: &[(&Adapter, f64)], data: &Dataset) -> f64 {
     let mut total = 0.0;
     let n = data.len();
     for start in (0..n).step_by(256) {
@@ -348,7 +343,7 @@ pub fn loss(net: &FloatNet, adapters: &[(&Adapter, f64)], data: &Dataset) -> f64
 /// Trains the layers `train_layers` of `net` and every adapter in
 /// `adapters` (weight 1 each) on `data`; everything else stays frozen.
 pub fn train(
-    net: &mut FloatNet,
+    net: &mut Net,
     train_layers: &[usize],
     adapters: &mut [Adapter],
     data: &Dataset,
@@ -625,17 +620,13 @@ pub struct DistillReport {
 }
 
 /// The dense model's normalised outputs on raw samples, as a data set for `net`.
-pub fn teacher_dataset(
-    dense: &FloatPfnn,
-    net: &FloatNet,
-    xs: &[Vec<f64>],
-    phases: &[f64],
-) -> Dataset {
+pub fn teacher_dataset(dense: &Net, net: &Net, xs: &[Vec<f64>], phases: &[f64]) -> Dataset {
     let (x, g) = inputs_and_gates(net, xs, phases);
     let mut y = Array2::zeros((xs.len(), dense.output_dim()));
     for (i, (raw, &p)) in xs.iter().zip(phases).enumerate() {
-        let t = dense.forward_trace(raw, p);
-        for (j, v) in t.y_norm.iter().enumerate() {
+        let t = dense.forward_trace(raw, p, &[]);
+        let y_norm = t.pre.last().map(|p| p.to_vec()).unwrap_or_default();
+        for (j, v) in y_norm.iter().enumerate() {
             y[(i, j)] = *v;
         }
     }
@@ -658,11 +649,11 @@ pub fn rollout_share(samples: usize, normal_fraction: f64, rollout_rows: usize) 
 /// normal samples when `data.train` is empty). Losses are reported on 512
 /// fresh normal samples, on `data.held_out` and on every `data.eval` set.
 pub fn distill(
-    dense: &FloatPfnn,
-    net: &FloatNet,
+    dense: &Net,
+    net: &Net,
     data: &DistillData,
     opts: &DistillOptions,
-) -> (FloatNet, DistillReport) {
+) -> (Net, DistillReport) {
     let stats = (dense.xmean.to_vec(), dense.xstd.to_vec());
     let n_roll = rollout_share(opts.samples, opts.normal_fraction, data.train.inputs.len());
     let n_norm = opts.samples - n_roll.min(opts.samples);
@@ -743,15 +734,15 @@ pub fn distill(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cp::float::{CpLayer, DiagLayer};
-    use crate::float_pfnn::{ExpertLayer, GatingMode};
+    use crate::net::{CpLayer, DiagLayer};
+    use crate::net::{ExpertLayer, GatingMode};
     use rand::Rng;
 
     fn rnd(rng: &mut ChaCha8Rng, r: usize, c: usize, sd: f64) -> Array2<f64> {
         Array2::from_shape_fn((r, c), |_| rng.gen_range(-1.0..1.0) * sd)
     }
 
-    fn tiny(rng: &mut ChaCha8Rng) -> FloatNet {
+    fn tiny(rng: &mut ChaCha8Rng) -> Net {
         let dense = |rng: &mut ChaCha8Rng, o: usize, i: usize| {
             NetLayer::Dense(ExpertLayer {
                 w: (0..4).map(|_| rnd(rng, o, i, 0.5)).collect(),
@@ -760,7 +751,7 @@ mod tests {
                     .collect(),
             })
         };
-        FloatNet {
+        Net {
             mode: GatingMode::Cubic,
             xmean: Array1::zeros(5),
             xstd: Array1::ones(5),

@@ -34,8 +34,8 @@ use ndarray::{Array1, Array2};
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use crate::cp::float::{Adapter, CpLayer, DiagLayer, FloatNet, NetLayer};
-use crate::float_pfnn::{ExpertLayer, GatingMode};
+use crate::net::{Adapter, CpLayer, DiagLayer, Net, NetLayer};
+use crate::net::{ExpertLayer, GatingMode};
 use crate::npz::{read_npz, NpArray};
 
 /// Reads every float array of a `.safetensors` file.
@@ -234,13 +234,13 @@ fn cp_layer(
 }
 
 /// Reads a whole network in the layout above.
-pub fn read_cp_net(path: &Path, mode: GatingMode) -> Result<FloatNet> {
+pub fn read_cp_net(path: &Path, mode: GatingMode) -> Result<Net> {
     let arrays = read_arrays(path)?;
     net_from_arrays(&arrays, mode).with_context(|| path.display().to_string())
 }
 
 /// [`read_cp_net`] for arrays already read.
-pub fn net_from_arrays(arrays: &BTreeMap<String, NpArray>, mode: GatingMode) -> Result<FloatNet> {
+pub fn net_from_arrays(arrays: &BTreeMap<String, NpArray>, mode: GatingMode) -> Result<Net> {
     let v = |n: &str| vector(get(arrays, n)?, n);
     let (xmean, xstd, ymean, ystd) = (v("Xmean")?, v("Xstd")?, v("Ymean")?, v("Ystd")?);
     if let Some(i) = xstd.iter().chain(&ystd).position(|&s| s <= 0.0) {
@@ -293,7 +293,7 @@ pub fn net_from_arrays(arrays: &BTreeMap<String, NpArray>, mode: GatingMode) -> 
     if mode == GatingMode::Cubic && k != 4 {
         bail!("cubic gating needs 4 control points, the file has {k}");
     }
-    Ok(FloatNet {
+    Ok(Net {
         mode,
         xmean,
         xstd,
@@ -396,7 +396,7 @@ fn layer_arrays(op: &NetLayer, suffix: &str, bias_name: &str, out: &mut Arrays) 
 }
 
 /// Writes a network in the layout above (float32).
-pub fn write_cp_net(net: &FloatNet, path: &Path) -> Result<()> {
+pub fn write_cp_net(net: &Net, path: &Path) -> Result<()> {
     let v = |a: &Array1<f64>| (vec![a.len() as u64], f32s(a.iter().copied()));
     let mut arrays: Arrays = Vec::new();
     for (n, a) in [
@@ -433,7 +433,7 @@ pub fn write_adapter(adapter: &Adapter, path: &Path) -> Result<()> {
 mod tests {
     use super::*;
 
-    fn tiny_net() -> FloatNet {
+    fn tiny_net() -> Net {
         let cp = |out: usize, inp: usize, r: usize| {
             NetLayer::Cp(CpLayer {
                 a: Array2::from_shape_fn((out, r), |(i, j)| (i * r + j) as f64 * 0.125 - 0.5),
@@ -444,7 +444,7 @@ mod tests {
                     .collect(),
             })
         };
-        FloatNet {
+        Net {
             mode: GatingMode::Cubic,
             xmean: Array1::from(vec![0.5, -1.0, 2.0]),
             xstd: Array1::from(vec![1.0, 2.0, 0.25]),

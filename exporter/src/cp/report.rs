@@ -20,10 +20,9 @@ use serde::Serialize;
 use crate::calibrate::normal_inputs;
 use crate::control_points::spline_basis;
 use crate::cp::als::AlsOptions;
-use crate::cp::float::{CpLayer, FloatNet, NetLayer};
-use crate::cp::{export_net, format_name};
-use crate::export::export_pfnn;
-use crate::float_pfnn::{ExpertLayer, FloatPfnn, GatingMode};
+use crate::export::{export, format_name};
+use crate::net::{CpLayer, Net, NetLayer};
+use crate::net::{ExpertLayer, GatingMode};
 use crate::quantise::QuantOptions;
 
 /// One decomposed layer.
@@ -161,7 +160,7 @@ pub fn run_blob(blob: &[u8], xs: &[Vec<f64>], phases: &[f64]) -> Result<Vec<Vec<
 }
 
 /// Float outputs of `net` (model units).
-pub fn run_float(net: &FloatNet, xs: &[Vec<f64>], phases: &[f64]) -> Vec<Vec<f64>> {
+pub fn run_float(net: &Net, xs: &[Vec<f64>], phases: &[f64]) -> Vec<Vec<f64>> {
     xs.iter()
         .zip(phases)
         .map(|(x, &p)| net.forward(x, p))
@@ -170,15 +169,14 @@ pub fn run_float(net: &FloatNet, xs: &[Vec<f64>], phases: &[f64]) -> Vec<Vec<f64
 
 /// Decomposes every layer of `dense` at `rank` (capped per layer at
 /// `min(out, in) * K`, beyond which CP gains nothing).
-pub fn decompose_all(
-    dense: &FloatPfnn,
-    rank: usize,
-    als: &AlsOptions,
-) -> (FloatNet, Vec<LayerError>) {
-    let mut net = FloatNet::from_pfnn(dense);
+pub fn decompose_all(dense: &Net, rank: usize, als: &AlsOptions) -> (Net, Vec<LayerError>) {
+    let mut net = dense.clone();
     let mut errors = Vec::new();
     for (i, layer) in dense.layers.iter().enumerate() {
-        let (out, inp) = layer.w[0].dim();
+        let Some(layer) = layer.as_dense() else {
+            continue;
+        };
+        let (out, inp) = layer.dim();
         let r = rank.min(out.min(inp) * layer.experts()).max(1);
         let (cp, res) = CpLayer::decompose(layer, r, als);
         errors.push(LayerError {
@@ -199,7 +197,7 @@ pub fn decompose_all(
 /// Measures every rank of `ranks` on `dense`, with blobs of every format
 /// of `formats`.
 pub fn measure_ranks(
-    dense: &FloatPfnn,
+    dense: &Net,
     ranks: &[usize],
     samples: usize,
     seed: u64,
@@ -229,7 +227,7 @@ pub fn measure_ranks(
     progress("dense blobs");
     let mut dense_rows = Vec::new();
     for &w in formats {
-        let (blob, rep) = export_pfnn(dense, None, &opts(w))?;
+        let (blob, rep) = export(dense, None, &opts(w))?;
         let y = run_blob(&blob, &s.inputs, &s.phases)?;
         let e = output_error(&y, &y_dense, &ymean, &ystd);
         dense_rows.push(BlobRow {
@@ -248,7 +246,7 @@ pub fn measure_ranks(
         let mut blobs = Vec::new();
         for &w in formats {
             progress(&format!("rank {rank}: {} blob", format_name(w)));
-            let (blob, rep) = export_net(&net, &opts(w))?;
+            let (blob, rep) = export(&net, None, &opts(w))?;
             let y_fixed = run_blob(&blob, &s.inputs, &s.phases)?;
             blobs.push(BlobRow {
                 weight_format: format_name(w),

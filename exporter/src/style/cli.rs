@@ -6,9 +6,8 @@ use phasegate::blob::WeightFormat;
 use std::path::PathBuf;
 
 use crate::cp::cli::{load_dense, write_both};
-use crate::cp::float::FloatNet;
 use crate::cp::import::read_adapter;
-use crate::float_pfnn::GatingMode;
+use crate::net::GatingMode;
 use crate::quantise::QuantOptions;
 use crate::style::{build_style, describe_style};
 
@@ -61,7 +60,7 @@ pub struct StyleArgs {
 pub fn style(args: &StyleArgs) -> Result<()> {
     let base_blob = std::fs::read(&args.base)
         .with_context(|| format!("cannot read {}", args.base.display()))?;
-    let base = FloatNet::from_pfnn(&load_dense(&args.base_weights, args.gating)?);
+    let base = load_dense(&args.base_weights, args.gating)?;
     let adapter = read_adapter(&args.adapter, args.layer)?;
     let opts = QuantOptions {
         weights: args.weight_bits,

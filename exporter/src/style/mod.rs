@@ -24,11 +24,11 @@ use phasegate::{Mix, Model, Phase, Style, StyledRuntime};
 use serde::Serialize;
 
 use crate::calibrate::normal_inputs;
-use crate::cp::encode::{encode_net, QKind, QModel};
-use crate::cp::float::{Adapter, FloatNet, NetLayer};
-use crate::cp::format_name;
-use crate::cp::quantise::{quantise_layer, LayerSpec};
 use crate::cp::report::{output_error, OutputError};
+use crate::encode::{encode, QKind, QModel};
+use crate::export::format_name;
+use crate::net::{Adapter, Net, NetLayer};
+use crate::quantise::LayerSpec;
 use crate::quantise::QuantOptions;
 
 /// Integer formats of base layer `layer`: the scales of its input columns
@@ -69,7 +69,7 @@ pub fn base_formats(model: &Model<'_>, layer: usize) -> Result<(Vec<f64>, Vec<u8
 /// Quantises `adapter` for the base `model` (whose float twin is `base`).
 pub fn quantise_adapter(
     model: &Model<'_>,
-    base: &FloatNet,
+    base: &Net,
     adapter: &Adapter,
     name: &str,
     opts: &QuantOptions,
@@ -145,7 +145,7 @@ pub fn quantise_adapter(
         mid_power: mid_ms.as_deref(),
         headroom: opts.headroom,
     };
-    let (ql, _) = quantise_layer(&adapter.op, &spec)?;
+    let (ql, _) = adapter.op.quantise(&spec)?;
     Ok(QModel {
         kind: QKind::Style {
             base_crc: model.header().payload_crc,
@@ -237,7 +237,7 @@ pub fn run_styled(
 /// style blob (it loads and attaches to the base), and measures it.
 pub fn build_style(
     base_blob: &[u8],
-    base: &FloatNet,
+    base: &Net,
     adapter: &Adapter,
     name: &str,
     opts: &QuantOptions,
@@ -245,7 +245,7 @@ pub fn build_style(
 ) -> Result<(Vec<u8>, StyleReport)> {
     let model = Model::from_bytes(base_blob).map_err(|e| anyhow!("base blob: {e}"))?;
     let q = quantise_adapter(&model, base, adapter, name, opts)?;
-    let blob = encode_net(&q)?;
+    let blob = encode(&q)?;
     let style =
         Style::from_bytes(&blob).map_err(|e| anyhow!("style written does not load: {e}"))?;
     let s = normal_inputs(

@@ -1,14 +1,14 @@
 //! The float network behind the controller's `Network` trait, in f64 (the
 //! reference) and in f32 (to measure what rounding alone does).
 
-use exporter::float_pfnn::{ExpertLayer, FloatPfnn};
+use exporter::net::{ExpertLayer, GatingMode, Net};
 use phasegate::controller::layout::{INPUTS, OUTPUTS};
 use phasegate::controller::Network;
 use phasegate::Result;
 use std::f64::consts::TAU;
 
-/// The f64 reference network (`FloatPfnn::forward`).
-pub struct FloatNet64<'a>(pub &'a FloatPfnn);
+/// The f64 reference network (`Net::forward`).
+pub struct FloatNet64<'a>(pub &'a Net);
 
 impl Network<f64> for FloatNet64<'_> {
     fn predict(&mut self, phase: f64, x: &[f64; INPUTS], y: &mut [f64; OUTPUTS]) -> Result<()> {
@@ -37,11 +37,12 @@ struct Layer32 {
 
 /// The float network with every weight and statistic rounded to f32 and
 /// every operation done in f32, the same operations in the same order as
-/// `FloatPfnn::forward` (normalise, `sum_k g_k (W_k x + b_k)`, ELU, ...).
-/// The gate is computed in f64 by `FloatPfnn::gate` and rounded: it is a
+/// `Net::forward` (normalise, `sum_k g_k (W_k x + b_k)`, ELU, ...).
+/// The gate is computed in f64 by `Net::gate` and rounded: it is a
 /// function of the phase only, not a source of divergence worth modelling.
 pub struct FloatNet32 {
-    gate_of: FloatPfnn,
+    mode: GatingMode,
+    experts: usize,
     xmean: Vec<f32>,
     xstd: Vec<f32>,
     ymean: Vec<f32>,
@@ -50,12 +51,24 @@ pub struct FloatNet32 {
 }
 
 impl FloatNet32 {
-    /// Rounds `net` to f32.
-    pub fn new(net: &FloatPfnn) -> Self {
+    /// Rounds `net` to f32; its layers must be dense.
+    pub fn new(net: &Net) -> anyhow::Result<Self> {
         let v = |a: &ndarray::Array1<f64>| a.iter().map(|&x| x as f32).collect::<Vec<f32>>();
-        let layers = net
+        let dense = net
             .layers
             .iter()
+            .enumerate()
+            .map(|(i, l)| {
+                l.as_dense().ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "the f32 controller needs dense layers; layer {i} is {}",
+                        l.form()
+                    )
+                })
+            })
+            .collect::<anyhow::Result<Vec<&ExpertLayer>>>()?;
+        let layers = dense
+            .into_iter()
             .map(|l| Layer32 {
                 rows: l.w.first().map_or(0, |w| w.nrows()),
                 cols: l.w.first().map_or(0, |w| w.ncols()),
@@ -66,34 +79,22 @@ impl FloatNet32 {
                 b: l.b.iter().map(v).collect(),
             })
             .collect();
-        // Only the gate is needed from the f64 network: a copy with the
-        // expert counts but no weights.
-        let gate_of = FloatPfnn {
+        Ok(FloatNet32 {
             mode: net.mode,
-            xmean: net.xmean.clone(),
-            xstd: net.xstd.clone(),
-            ymean: net.ymean.clone(),
-            ystd: net.ystd.clone(),
-            layers: net.layers.each_ref().map(|l| ExpertLayer {
-                w: vec![ndarray::Array2::zeros((0, 0)); l.experts()],
-                b: Vec::new(),
-            }),
-        };
-        FloatNet32 {
-            gate_of,
+            experts: net.experts(),
             xmean: v(&net.xmean),
             xstd: v(&net.xstd),
             ymean: v(&net.ymean),
             ystd: v(&net.ystd),
             layers,
-        }
+        })
     }
 
     /// Raw model units in and out, f32 throughout.
     pub fn forward(&self, x: &[f32], phase_rad: f64) -> Vec<f32> {
         let gate: Vec<(usize, f32)> = self
-            .gate_of
-            .gate(phase_rad)
+            .mode
+            .gate(self.experts, phase_rad)
             .into_iter()
             .map(|(k, g)| (k, g as f32))
             .collect();

@@ -8,7 +8,7 @@ mod float_net;
 pub use float_net::{FloatNet32, FloatNet64};
 
 use anyhow::{anyhow, Result};
-use exporter::float_pfnn::FloatPfnn;
+use exporter::net::Net;
 use phasegate::controller::layout::{Outputs, JOINTS, OUTPUTS};
 use phasegate::controller::{Command, Locomotion, Network, PfnnController, Pose, Real};
 use phasegate::Model;
@@ -109,7 +109,7 @@ impl<R: Real, N: Network<R>> FloatController<R, N> {
 }
 
 /// The f64 reference over `net`.
-pub fn reference_f64(net: &FloatPfnn) -> Result<FloatController<f64, FloatNet64<'_>>> {
+pub fn reference_f64(net: &Net) -> Result<FloatController<f64, FloatNet64<'_>>> {
     FloatController::new(
         FloatNet64(net),
         format!("float reference (f64, {} gating)", net.mode),
@@ -117,9 +117,9 @@ pub fn reference_f64(net: &FloatPfnn) -> Result<FloatController<f64, FloatNet64<
 }
 
 /// The f32 float controller over `net` (weights rounded to f32).
-pub fn reference_f32(net: &FloatPfnn) -> Result<FloatController<f32, FloatNet32>> {
+pub fn reference_f32(net: &Net) -> Result<FloatController<f32, FloatNet32>> {
     FloatController::new(
-        FloatNet32::new(net),
+        FloatNet32::new(net)?,
         format!("float controller (f32, {} gating)", net.mode),
     )
 }

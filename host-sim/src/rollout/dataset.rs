@@ -19,7 +19,7 @@
 
 use anyhow::{bail, Context, Result};
 use exporter::cp::distill::{DATA_INPUTS, DATA_PHASES};
-use exporter::float_pfnn::{FloatPfnn, GatingMode};
+use exporter::net::{GatingMode, Net};
 use std::f64::consts::TAU;
 use std::path::PathBuf;
 
@@ -98,7 +98,7 @@ impl RolloutDataset {
 
 /// Runs the f64 float controller over `net` for `frames` frames of each
 /// script, recording every network input and phase.
-pub fn collect(net: &FloatPfnn, scripts: &[Script], frames: usize) -> Result<RolloutDataset> {
+pub fn collect(net: &Net, scripts: &[Script], frames: usize) -> Result<RolloutDataset> {
     let mut d = RolloutDataset::default();
     for (si, script) in scripts.iter().enumerate() {
         let mut ctl = reference_f64(net)?;

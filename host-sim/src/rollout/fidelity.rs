@@ -4,8 +4,8 @@
 //! issue 3 checked on them.
 
 use anyhow::{Context, Result};
-use exporter::export::export_pfnn;
-use exporter::float_pfnn::{FloatPfnn, GatingMode};
+use exporter::export::export;
+use exporter::net::{GatingMode, Net};
 use exporter::quantise::QuantOptions;
 use phasegate::blob::WeightFormat;
 use serde::Serialize;
@@ -63,13 +63,13 @@ pub struct Blobs {
 }
 
 /// Exports the cubic float network at both weight widths.
-pub fn export_blobs(net: &FloatPfnn) -> Result<Blobs> {
+pub fn export_blobs(net: &Net) -> Result<Blobs> {
     let blob = |weights| -> Result<Vec<u8>> {
         let opts = QuantOptions {
             weights,
             ..Default::default()
         };
-        Ok(export_pfnn(net, None, &opts)?.0)
+        Ok(export(net, None, &opts)?.0)
     };
     Ok(Blobs {
         int16: blob(WeightFormat::I16)?,
@@ -78,19 +78,14 @@ pub fn export_blobs(net: &FloatPfnn) -> Result<Blobs> {
 }
 
 /// Loads a PFNN weight directory as the cubic float network.
-pub fn load_cubic(dir: &Path) -> Result<FloatPfnn> {
+pub fn load_cubic(dir: &Path) -> Result<Net> {
     let tables = exporter::pfnn_dir::load_pfnn_dir_auto(dir, None)
         .with_context(|| format!("loading {}", dir.display()))?;
-    Ok(FloatPfnn::from_tables(&tables, GatingMode::Cubic).0)
+    Ok(Net::from_pfnn_tables(&tables, GatingMode::Cubic).0)
 }
 
 /// The four rollouts of one script: f64 reference first, then [`VARIANTS`].
-pub fn rollouts(
-    net: &FloatPfnn,
-    blobs: &Blobs,
-    script: &Script,
-    frames: usize,
-) -> Result<[Rollout; 4]> {
+pub fn rollouts(net: &Net, blobs: &Blobs, script: &Script, frames: usize) -> Result<[Rollout; 4]> {
     let mut f64c = reference_f64(net)?;
     let mut f32c = reference_f32(net)?;
     let mut i16c = FixedController::new(&blobs.int16, "int16 cubic")?;
@@ -107,7 +102,7 @@ pub fn rollouts(
 /// Runs every script in `scripts` (the built-ins if empty), two at a time;
 /// writes each rollout to `out_dir/<script>-<controller>.npz` if given.
 pub fn measure(
-    net: &FloatPfnn,
+    net: &Net,
     blobs: &Blobs,
     scripts: &[String],
     frames: usize,

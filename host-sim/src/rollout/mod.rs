@@ -9,7 +9,7 @@ pub mod record;
 pub mod script;
 
 use anyhow::{anyhow, bail, Context, Result};
-use exporter::float_pfnn::{FloatPfnn, GatingMode};
+use exporter::net::{GatingMode, Net};
 use std::path::{Path, PathBuf};
 
 use crate::controller::{reference_f32, reference_f64, Controller, FixedController};
@@ -76,12 +76,12 @@ pub struct RolloutArgs {
 }
 
 /// Loads a float network from a PFNN directory or an .npz.
-pub fn load_reference(path: &Path, mode: GatingMode) -> Result<FloatPfnn> {
+pub fn load_reference(path: &Path, mode: GatingMode) -> Result<Net> {
     if path.is_dir() {
         let tables = exporter::pfnn_dir::load_pfnn_dir_auto(path, None)?;
-        Ok(FloatPfnn::from_tables(&tables, mode).0)
+        Ok(Net::from_pfnn_tables(&tables, mode).0)
     } else {
-        exporter::npz::float_pfnn_from_npz(path, mode)
+        exporter::npz::pfnn_from_npz(path, mode)
     }
 }
 

@@ -22,10 +22,10 @@
 
 use anyhow::{Context, Result};
 use exporter::cp::distill::{inputs_and_gates, train, Dataset, TrainOptions};
-use exporter::cp::float::{Adapter, CpLayer, FloatNet, NetLayer};
 use exporter::cp::import::write_adapter;
-use exporter::export::export_pfnn;
-use exporter::float_pfnn::GatingMode;
+use exporter::export::export;
+use exporter::net::GatingMode;
+use exporter::net::{Adapter, CpLayer, Net, NetLayer};
 use exporter::quantise::QuantOptions;
 use exporter::style::{build_style, StyleReport};
 use ndarray::{concatenate, Array1, Array2, Axis};
@@ -236,7 +236,7 @@ const IN_VEL: usize = IN_POS + 3 * JOINTS;
 /// captured doing the same. Styled rollouts (`styled` true, DAgger-style):
 /// the states the styled controller reached, labelled with the transformed
 /// base output of the equivalent unstyled state.
-fn dataset(net: &FloatNet, runs: &[Run], target: Target, styled: bool) -> Dataset {
+fn dataset(net: &Net, runs: &[Run], target: Target, styled: bool) -> Dataset {
     let ymean = net.ymean.to_vec();
     let raw: Vec<Vec<f64>> = runs.iter().flat_map(|r| r.inputs.clone()).collect();
     let ps: Vec<f64> = runs.iter().flat_map(|r| r.phases.clone()).collect();
@@ -344,7 +344,7 @@ pub struct DemoReport {
     pub phase_step_max: (f64, f64),
 }
 
-fn residual(target: Target, run: &Run, net: &FloatNet) -> f64 {
+fn residual(target: Target, run: &Run, net: &Net) -> f64 {
     let ymean = net.ymean.to_vec();
     let coords: Vec<usize> = match target {
         Target::Crouch => (0..JOINTS)
@@ -379,10 +379,10 @@ pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let pfnn = crate::style::load_float(&args.pfnn)?;
-    let net = FloatNet::from_pfnn(&pfnn);
+    let net = pfnn.clone();
     let hidden = net.layers[1].out_dim();
     eprintln!("exporting the int8 base blob");
-    let (base_blob, _) = export_pfnn(&pfnn, None, &QuantOptions::default())?;
+    let (base_blob, _) = export(&pfnn, None, &QuantOptions::default())?;
     exporter::atomic::write_atomic(&args.out.join("base.blob"), &base_blob)?;
 
     eprintln!("base rollouts for training");

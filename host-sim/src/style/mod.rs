@@ -6,7 +6,7 @@
 pub mod demo;
 
 use anyhow::{anyhow, Result};
-use exporter::cp::float::{Adapter, FloatNet};
+use exporter::net::{Adapter, Net};
 use phasegate::controller::layout::{INPUTS, JOINTS, OUTPUTS};
 use phasegate::controller::{Command, Locomotion, Network, Pose, Real};
 use phasegate::{Mix, Model, Style, StyledRuntime};
@@ -16,7 +16,7 @@ use std::fmt::Write as _;
 /// The float network with adapters (each with its mixing weight), f64.
 pub struct StyledFloat<'a> {
     /// Base.
-    pub net: &'a FloatNet,
+    pub net: &'a Net,
     /// Adapters and weights.
     pub adapters: Vec<(&'a Adapter, f64)>,
 }
@@ -44,8 +44,8 @@ impl Network<f64> for StyledFloat<'_> {
 }
 
 /// The float PFNN (cubic gating) from a weight directory or an `.npz`.
-pub fn load_float(path: &std::path::Path) -> Result<exporter::float_pfnn::FloatPfnn> {
-    exporter::cp::cli::load_dense(path, exporter::float_pfnn::GatingMode::Cubic)
+pub fn load_float(path: &std::path::Path) -> Result<exporter::net::Net> {
+    exporter::cp::cli::load_dense(path, exporter::net::GatingMode::Cubic)
 }
 
 /// Activation width of host styled runtimes.

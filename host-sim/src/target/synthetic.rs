@@ -4,9 +4,9 @@
 //! (CP, diagonal, full) for it or for the embedded default model.
 
 use anyhow::{anyhow, Result};
-use exporter::cp::encode::{encode_net, QKind};
-use exporter::cp::float::{Adapter, CpLayer, DiagLayer, FloatNet, NetLayer};
-use exporter::float_pfnn::{ExpertLayer, FloatPfnn, GatingMode};
+use exporter::encode::{encode, QKind};
+use exporter::net::{Adapter, CpLayer, DiagLayer, Net, NetLayer};
+use exporter::net::{ExpertLayer, GatingMode};
 use exporter::quantise::QuantOptions;
 use exporter::style::quantise_adapter;
 use ndarray::{Array1, Array2};
@@ -51,9 +51,9 @@ fn dense_layer(rng: &mut ChaCha8Rng, out: usize, inp: usize) -> ExpertLayer {
 /// A whole-network CP model with cubic gating: CP `input -> hidden` (rank
 /// `rank`), diagonal `hidden -> hidden`, CP `hidden -> output` (rank
 /// `rank / 2`, at least 1). Every layer gated by the phase.
-pub fn cp_net(seed: u64, input: usize, hidden: usize, output: usize, rank: usize) -> FloatNet {
+pub fn cp_net(seed: u64, input: usize, hidden: usize, output: usize, rank: usize) -> Net {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    FloatNet {
+    Net {
         mode: GatingMode::Cubic,
         xmean: Array1::from_shape_fn(input, |_| normal(&mut rng)),
         xstd: Array1::from_shape_fn(input, |_| rng.gen_range(0.2..3.0)),
@@ -72,18 +72,18 @@ pub fn cp_net(seed: u64, input: usize, hidden: usize, output: usize, rank: usize
 
 /// A small PFNN-shaped dense base (cubic gating): `input -> hidden ->
 /// hidden -> output`.
-pub fn pfnn_base(seed: u64, input: usize, hidden: usize, output: usize) -> FloatPfnn {
+pub fn pfnn_base(seed: u64, input: usize, hidden: usize, output: usize) -> Net {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    FloatPfnn {
+    Net {
         mode: GatingMode::Cubic,
         xmean: Array1::from_shape_fn(input, |_| normal(&mut rng)),
         xstd: Array1::from_shape_fn(input, |_| rng.gen_range(0.2..3.0)),
         ymean: Array1::from_shape_fn(output, |_| 3.0 * normal(&mut rng)),
         ystd: Array1::from_shape_fn(output, |_| rng.gen_range(0.1..10.0)),
-        layers: [
-            dense_layer(&mut rng, hidden, input),
-            dense_layer(&mut rng, hidden, hidden),
-            dense_layer(&mut rng, output, hidden),
+        layers: vec![
+            NetLayer::Dense(dense_layer(&mut rng, hidden, input)),
+            NetLayer::Dense(dense_layer(&mut rng, hidden, hidden)),
+            NetLayer::Dense(dense_layer(&mut rng, output, hidden)),
         ],
     }
 }
@@ -121,7 +121,7 @@ pub fn adapter(form: &str, width: usize, rank: usize, seed: u64) -> Adapter {
 /// base" whose CRC is known in advance).
 pub fn style_blob(
     base_blob: &[u8],
-    base: &FloatNet,
+    base: &Net,
     adapter: &Adapter,
     name: &str,
     base_crc: Option<u32>,
@@ -131,13 +131,13 @@ pub fn style_blob(
     if let (Some(crc), QKind::Style { base_crc, .. }) = (base_crc, &mut q.kind) {
         *base_crc = crc;
     }
-    Ok(encode_net(&q)?)
+    Ok(encode(&q)?)
 }
 
 /// Two styles for the embedded default model, beside its layer 1 (32
 /// wide): `snap-cp` (CP, rank 8) and `snap-diagonal`.
 pub fn default_model_styles() -> Result<Vec<Vec<u8>>> {
-    let net = FloatNet::from_pfnn(&crate::default_model::float_model()?);
+    let net = crate::default_model::float_model()?;
     let blob = crate::default_model::BLOB;
     let width = crate::default_model::HIDDEN;
     Ok(vec![
@@ -155,7 +155,7 @@ pub fn default_model_styles() -> Result<Vec<Vec<u8>>> {
 /// A style that claims the base with payload CRC `base_crc` (built for the
 /// default model, so everything but the CRC fits it).
 pub fn default_model_style_for_crc(base_crc: u32) -> Result<Vec<u8>> {
-    let net = FloatNet::from_pfnn(&crate::default_model::float_model()?);
+    let net = crate::default_model::float_model()?;
     style_blob(
         crate::default_model::BLOB,
         &net,

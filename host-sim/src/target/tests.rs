@@ -373,7 +373,7 @@ fn budgets_bite() {
 /// A small valid blob: one ungated identity layer `in -> width` then
 /// `width -> out`, tiny weights so the 32-bit accumulator proof holds.
 fn synthetic_blob(input_dim: usize, width: usize, output_dim: usize, seed: u64) -> Vec<u8> {
-    use exporter::blob_writer::{encode, BlobLayer, BlobModel};
+    use exporter::encode::{encode, QKind, QLayer, QModel};
     use phasegate::blob::{
         AccWidth, Activation, Gating, LayerDesc, LayerOp, ModelKind, Requant, Section, WeightFormat,
     };
@@ -384,7 +384,7 @@ fn synthetic_blob(input_dim: usize, width: usize, output_dim: usize, seed: u64) 
             .wrapping_add(1442695040888963407);
         ((s >> 33) % 7) as i32 - 3
     };
-    let mut layer = |i: usize, o: usize| BlobLayer {
+    let mut layer = |i: usize, o: usize| QLayer {
         desc: LayerDesc {
             op: LayerOp::Dense,
             in_dim: i as u16,
@@ -409,10 +409,11 @@ fn synthetic_blob(input_dim: usize, width: usize, output_dim: usize, seed: u64) 
             };
             o
         ],
+        cp: None,
     };
     let layers = vec![layer(input_dim, width), layer(width, output_dim)];
-    let m = BlobModel {
-        kind: ModelKind::Mlp,
+    let m = QModel {
+        kind: QKind::Model(ModelKind::Mlp),
         gating: Gating::Single,
         input_stage: vec![(0.0, 256.0); input_dim],
         output_stage: vec![(1.0 / 256.0, 0.0); output_dim],
@@ -593,7 +594,7 @@ fn firmware_log_snapshots() {
 /// (`Xmean + Xstd * N(0, 1)`). Needs `../shared/pfnn/network`.
 #[test]
 fn real_pfnn_int8_cubic_is_bit_exact_on_the_target() {
-    use exporter::float_pfnn::{FloatPfnn, GatingMode};
+    use exporter::net::{GatingMode, Net};
     use npyz::WriterBuilder;
     let name = "real_pfnn_int8_cubic_is_bit_exact_on_the_target";
     let dir = repo_root()
@@ -609,12 +610,12 @@ fn real_pfnn_int8_cubic_is_bit_exact_on_the_target() {
         return;
     }
     let tables = exporter::pfnn_dir::load_pfnn_dir(&dir).unwrap();
-    let (net, residual) = FloatPfnn::from_tables(&tables, GatingMode::Cubic);
+    let (net, residual) = Net::from_pfnn_tables(&tables, GatingMode::Cubic);
     let opts = exporter::quantise::QuantOptions {
         weights: phasegate::blob::WeightFormat::I8,
         ..exporter::quantise::QuantOptions::default()
     };
-    let (blob, _) = exporter::export::export_pfnn(&net, residual, &opts).unwrap();
+    let (blob, _) = exporter::export::export(&net, residual, &opts).unwrap();
     let tmp = tempfile::tempdir().unwrap();
     let blob_path = tmp.path().join("pfnn-int8-cubic.blob");
     std::fs::write(&blob_path, &blob).unwrap();
@@ -652,12 +653,12 @@ fn real_pfnn_int8_cubic_is_bit_exact_on_the_target() {
 // ---- CP layers and styles ----
 
 /// A small base (24 -> 20 -> 20 -> 10, cubic) with its blob and float twin.
-fn styled_base(seed: u64) -> (Vec<u8>, exporter::cp::float::FloatNet) {
+fn styled_base(seed: u64) -> (Vec<u8>, exporter::net::Net) {
     let pfnn = synthetic::pfnn_base(seed, 24, 20, 10);
     let (blob, _) =
-        exporter::export::export_pfnn(&pfnn, None, &exporter::quantise::QuantOptions::default())
+        exporter::export::export(&pfnn, None, &exporter::quantise::QuantOptions::default())
             .unwrap();
-    (blob, exporter::cp::float::FloatNet::from_pfnn(&pfnn))
+    (blob, pfnn)
 }
 
 /// The base of [`styled_base`] with a CP (rank 6) and a diagonal style.
@@ -722,7 +723,7 @@ fn whole_cp_model_is_bit_exact_on_the_target() {
     }
     let net = synthetic::cp_net(51, 40, 48, 12, 16);
     let (blob, _) =
-        exporter::cp::export_net(&net, &exporter::quantise::QuantOptions::default()).unwrap();
+        exporter::export::export(&net, None, &exporter::quantise::QuantOptions::default()).unwrap();
     let model = Model::from_bytes(&blob).unwrap();
     let ops: Vec<_> = model.header().layers.iter().map(|l| l.op).collect();
     assert!(

@@ -1,15 +1,39 @@
-//! Lays out every blob: models whose layers may be dense, CP or diagonal,
-//! and style blobs. [`crate::blob_writer::encode`] (dense models, whose
-//! bytes the golden vectors pin) goes through [`encode_net`]; the framing
-//! is [`crate::blob_writer::frame`].
+//! The one encoder: lays out every blob (models whose layers may be dense,
+//! CP or diagonal, and style blobs), fills in the header and frames it.
+//! The inverse of `phasegate::Model::from_bytes`; see `docs/blob-format.md`.
 
 use phasegate::blob::{
     crc32, AccWidth, Gating, Header, LayerDesc, LayerOp, ModelKind, Requant, Section, WeightFormat,
-    MAX_LAYERS, MAX_STYLE_NAME,
+    FORMAT_VERSION, MAGIC, MAX_LAYERS, MAX_STYLE_NAME, PAYLOAD_ALIGN, PREAMBLE_LEN,
 };
-use phasegate::kernels::cp::MidRecord;
+use phasegate::ops::cp::MidRecord;
 
-use crate::blob_writer::{frame, EncodeError};
+/// Why a model cannot be encoded (a bug in the caller, not bad user input).
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum EncodeError {
+    /// More layers than a header holds.
+    #[error("{0} layers: a blob holds at most {MAX_LAYERS}")]
+    TooManyLayers(usize),
+    /// A dimension or the payload does not fit its header field.
+    #[error("{0} is too large for the blob format")]
+    TooLarge(&'static str),
+    /// A value does not fit its storage type.
+    #[error("layer {layer}: {what} out of range for its storage type")]
+    OutOfRange {
+        /// Layer index.
+        layer: usize,
+        /// Which array.
+        what: &'static str,
+    },
+    /// An array has the wrong number of elements.
+    #[error("layer {layer}: {what} has the wrong length")]
+    Length {
+        /// Layer index.
+        layer: usize,
+        /// Which array.
+        what: &'static str,
+    },
+}
 
 /// The extra arrays of a CP layer.
 #[derive(Clone, Debug, PartialEq)]
@@ -25,7 +49,7 @@ pub struct QCp {
 /// One quantised layer of any op.
 #[derive(Clone, Debug, PartialEq)]
 pub struct QLayer {
-    /// Descriptor; sections are filled in by [`encode_net`]. For CP layers
+    /// Descriptor; sections are filled in by [`encode`]. For CP layers
     /// `op` carries the rank.
     pub desc: LayerDesc,
     /// Dense: `experts x out x in`; CP: `B^T` (`rank x in`); diagonal:
@@ -205,7 +229,7 @@ fn layer_sections(payload: &mut Payload, l: &QLayer, i: usize) -> Result<LayerDe
 }
 
 /// Lays out the payload, fills in the header and returns the blob bytes.
-pub fn encode_net(m: &QModel) -> Result<Vec<u8>, EncodeError> {
+pub fn encode(m: &QModel) -> Result<Vec<u8>, EncodeError> {
     if m.layers.len() > MAX_LAYERS {
         return Err(EncodeError::TooManyLayers(m.layers.len()));
     }
@@ -269,4 +293,23 @@ pub fn encode_net(m: &QModel) -> Result<Vec<u8>, EncodeError> {
         payload_crc: crc32(&payload.0),
     };
     Ok(frame(&header, &payload.0))
+}
+
+/// Preamble + header + padding + payload. Public so tests can build blobs
+/// with deliberately inconsistent headers.
+pub fn frame(header: &Header, payload: &[u8]) -> Vec<u8> {
+    let header_bytes = postcard::to_allocvec(header).unwrap_or_default();
+    let header_len = u16::try_from(header_bytes.len()).unwrap_or(u16::MAX);
+    let mut out =
+        Vec::with_capacity(PREAMBLE_LEN + header_bytes.len() + PAYLOAD_ALIGN + payload.len());
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&header_len.to_le_bytes());
+    let mut crc_input = out.clone();
+    crc_input.extend_from_slice(&header_bytes);
+    out.extend_from_slice(&crc32(&crc_input).to_le_bytes());
+    out.extend_from_slice(&header_bytes);
+    out.resize(out.len().next_multiple_of(PAYLOAD_ALIGN), 0);
+    out.extend_from_slice(payload);
+    out
 }

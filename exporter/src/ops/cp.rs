@@ -1,0 +1,239 @@
+//! The CP-decomposed gated op: `W_k = A diag(d_k) B^T`, so
+//! `y = A ((sum_k g_k d_k) . (B^T x)) + sum_k g_k b_k`; `W` is never expanded.
+//!
+//! Quantised like every op ([`crate::quantise`]): symmetric weights with one
+//! scale per stored row, biases in accumulator units, the input columns'
+//! scales absorbed into the weights, per-row output formats from the
+//! pipeline. What CP layers add:
+//!
+//! * `B^T` gets one scale per rank component `sB_r`, the cores `d_k[r]`
+//!   (int16 always: they are tiny) one per component `sD_r`, shared by the
+//!   experts so the gate blends them before any rounding;
+//! * the middle vector `u_r = c_r t_r` gets its own free int16 scale `zs_r`
+//!   from calibration, and `A`'s columns absorb `1 / zs_r`;
+//! * every shift is chosen from worst-case bounds over all i16 inputs and
+//!   all phases, with the same formulas the loader re-checks
+//!   (`phasegate::ops::cp::CpLayer::check`), so a blob this writes is
+//!   never refused and never saturates before its final i16.
+
+use ndarray::{Array1, Array2};
+use phasegate::blob::{AccWidth, LayerOp, Section};
+use phasegate::ops::cp::{gate_l1_max, MidRecord};
+
+use crate::cp::als::{cp_als, sort_components, AlsOptions, AlsResult};
+use crate::encode::{QCp, QLayer};
+use crate::ops::dense::ExpertLayer;
+use crate::quantise::{
+    fixed_multiplier, layer_desc, layer_report, qmax, quantise_rows, requant_for, shift_to_i32,
+    LayerSpec, QuantError, QuantLayerReport, I32_MAX,
+};
+
+const ACT_MAX: f64 = 32767.0;
+
+/// A CP-decomposed gated layer: `W_k = A diag(d_k) B^T`, so
+/// `y = A ((sum_k g_k d_k) . (B^T x)) + sum_k g_k b_k`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CpLayer {
+    /// `out x R`.
+    pub a: Array2<f64>,
+    /// `in x R`.
+    pub b: Array2<f64>,
+    /// `K x R`: row k is the core `d_k` of expert k.
+    pub d: Array2<f64>,
+    /// `K` biases of `out`.
+    pub bias: Vec<Array1<f64>>,
+}
+
+impl CpLayer {
+    /// Rank `R`.
+    pub fn rank(&self) -> usize {
+        self.a.ncols()
+    }
+
+    /// Expert count `K`.
+    pub fn experts(&self) -> usize {
+        self.d.nrows()
+    }
+
+    /// The middle vector `u = (sum_k g_k d_k) . (B^T x)`.
+    pub fn middle(&self, gate: &[(usize, f64)], x: &Array1<f64>) -> Array1<f64> {
+        let mut c = Array1::zeros(self.rank());
+        for &(k, g) in gate {
+            c.scaled_add(g, &self.d.row(k));
+        }
+        self.b.t().dot(x) * c
+    }
+
+    /// `y` and the middle vector `u`.
+    pub fn apply_mid(&self, gate: &[(usize, f64)], x: &Array1<f64>) -> (Array1<f64>, Array1<f64>) {
+        let u = self.middle(gate, x);
+        let mut y = self.a.dot(&u);
+        for &(k, g) in gate {
+            y.scaled_add(g, &self.bias[k]);
+        }
+        (y, u)
+    }
+
+    /// The dense weights of expert `k` (for tests and error reports).
+    pub fn expert(&self, k: usize) -> Array2<f64> {
+        (&self.a * &self.d.row(k)).dot(&self.b.t())
+    }
+
+    /// Decomposes a dense layer at rank `rank`: the experts' weights,
+    /// stacked `out x in x K`, by CP-ALS; the biases are kept as they are.
+    pub fn decompose(layer: &ExpertLayer, rank: usize, opts: &AlsOptions) -> (CpLayer, AlsResult) {
+        let mut res = cp_als(&layer.w, rank, opts);
+        sort_components(&mut res.factors);
+        let f = &res.factors;
+        let cp = CpLayer {
+            a: f.a.clone(),
+            b: f.b.clone(),
+            d: f.c.clone(),
+            bias: layer.b.clone(),
+        };
+        (cp, res)
+    }
+}
+
+/// Extra headroom of CP middle vectors over the rows' (a product of two
+/// calibrated quantities has heavier tails than either; measured on the
+/// real PFNN, 1.5x of the calibrated maximum saturates a few values in a
+/// few hundred frames, 4x none).
+pub const MID_HEADROOM_FACTOR: f64 = 2.5;
+
+/// Quantises a CP layer for `spec`.
+pub fn quantise(
+    l: &CpLayer,
+    spec: &LayerSpec<'_>,
+) -> Result<(QLayer, QuantLayerReport), QuantError> {
+    let (rank, experts) = (l.rank(), l.experts());
+    let (out, inp) = (l.a.nrows(), l.b.nrows());
+    let q = qmax(spec.format);
+    let mid_max = spec.mid_max.ok_or_else(|| {
+        QuantError::Invalid(format!(
+            "layer {}: CP layer without calibration",
+            spec.index
+        ))
+    })?;
+    // B^T: one scale per component; the input columns' scales absorbed.
+    let in_power: Option<Vec<f64>> = spec.in_power.map(|p| {
+        p.iter()
+            .zip(spec.in_scales)
+            .map(|(m, u)| m * u * u)
+            .collect()
+    });
+    let bt = quantise_rows(
+        rank,
+        inp,
+        q,
+        |r, j| l.b[(j, r)] / spec.in_scales[j],
+        in_power.as_deref(),
+    );
+    // Cores: int16, one scale per component shared by the experts.
+    let mut cores = vec![0i16; experts * rank];
+    let mut core_scales = vec![1.0; rank];
+    let mut core_max = vec![0u64; rank];
+    for r in 0..rank {
+        let maxabs = (0..experts).map(|k| l.d[(k, r)].abs()).fold(0.0, f64::max);
+        let s = if maxabs > 0.0 { ACT_MAX / maxabs } else { 1.0 };
+        core_scales[r] = s;
+        for k in 0..experts {
+            let v = (l.d[(k, r)] * s).round().clamp(-ACT_MAX, ACT_MAX);
+            cores[k * rank + r] = v as i16;
+            core_max[r] = core_max[r].max(v.abs() as u64);
+        }
+    }
+    // Middle formats: free scales from calibration.
+    let zs: Vec<f64> = mid_max
+        .iter()
+        .map(|&m| {
+            if m > 0.0 {
+                ACT_MAX / (spec.headroom * MID_HEADROOM_FACTOR * m)
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let mid_power: Option<Vec<f64>> = spec
+        .mid_power
+        .map(|p| p.iter().zip(&zs).map(|(m, z)| m * z * z).collect());
+    let a = quantise_rows(
+        out,
+        rank,
+        q,
+        |i, r| l.a[(i, r)] / zs[r],
+        mid_power.as_deref(),
+    );
+    let mut bias = vec![0i64; experts * out];
+    for k in 0..experts {
+        for i in 0..out {
+            bias[k * out + i] = (l.bias[k][i] * a.scales[i]).round() as i64;
+        }
+    }
+    let fits = bt
+        .l1
+        .iter()
+        .chain(&a.l1)
+        .all(|&v| u128::from(v) << 15 <= I32_MAX)
+        && bias.iter().all(|&b| i32::try_from(b).is_ok());
+    let acc = if fits { AccWidth::I32 } else { AccWidth::I64 };
+    let g1 = gate_l1_max(&spec.gating) as u128;
+    let mut mid = Vec::with_capacity(rank);
+    for r in 0..rank {
+        let t_bound = u128::from(bt.l1[r]) << 15;
+        let t_shift = shift_to_i32(t_bound);
+        let t = (t_bound >> t_shift) + 1;
+        let c = ((g1 * u128::from(core_max[r])) >> 16) + 1;
+        let pre = shift_to_i32(t * c);
+        let m_real = zs[r] * f64::from(t_shift).exp2() / (bt.scales[r] * core_scales[r])
+            * f64::from(pre).exp2();
+        let (multiplier, post_shift) = fixed_multiplier(m_real).ok_or(QuantError::Scale {
+            layer: spec.index,
+            row: r,
+        })?;
+        mid.push(MidRecord {
+            multiplier,
+            t_shift,
+            pre_shift: pre,
+            post_shift,
+        });
+    }
+    let mut requant = Vec::with_capacity(out);
+    for i in 0..out {
+        let bmax = (0..experts)
+            .map(|k| u128::from(bias[k * out + i].unsigned_abs()))
+            .max()
+            .unwrap_or(0);
+        let bound = ((u128::from(a.l1[i]) << 15) << 16) + g1 * bmax;
+        requant.push(requant_for(spec, i, a.scales[i], bound)?);
+    }
+    let ql = QLayer {
+        desc: layer_desc(
+            spec,
+            LayerOp::Cp {
+                rank: u16::try_from(rank)
+                    .map_err(|_| QuantError::Invalid("rank above 65535".into()))?,
+                a: Section::default(),
+                cores: Section::default(),
+                mid: Section::default(),
+            },
+            inp,
+            out,
+            experts,
+            acc,
+        ),
+        weights: bt.q,
+        bias,
+        requant,
+        cp: Some(QCp { a: a.q, cores, mid }),
+    };
+    let rep = layer_report(
+        spec,
+        &ql,
+        "cp",
+        Some(rank),
+        bt.sig + a.sig,
+        bt.noise + a.noise,
+    );
+    Ok((ql, rep))
+}
