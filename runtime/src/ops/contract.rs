@@ -681,8 +681,10 @@ macro_rules! op_contract {
             fn covers_every_configuration() {
                 let mut stats = Stats::default();
                 let mut seen = std::collections::BTreeSet::new();
+                let mut widths = std::collections::BTreeSet::new();
                 for seed in 0..800u64 {
                     let (gating, s) = bit_exact::<$case>(seed, 12, &mut stats);
+                    widths.insert(s.in_dim);
                     let g = match gating {
                         Gating::Single => 0,
                         Gating::Constant { .. } => 1,
@@ -693,6 +695,8 @@ macro_rules! op_contract {
                 }
                 std::eprintln!("{}: {stats:?}", stringify!($name));
                 assert_eq!(seen.len(), 64, "{seen:?}");
+                // Every input width (so every tail of any unrolling) 1..=40.
+                assert_eq!(widths.len(), 40, "{widths:?}");
                 assert!(stats.accepted >= 600, "{stats:?}");
                 assert!(stats.interesting >= 5_000, "{stats:?}");
                 assert!(stats.float_checked >= 1_000, "{stats:?}");

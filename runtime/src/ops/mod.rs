@@ -13,7 +13,7 @@
 //! the blob's own numbers), its MAC and scratch figures, and its kernel. The
 //! output-row tail (requantisation, activation) and the record checks all
 //! ops share are in `common`. [`Layer`] is the closed set of ops the format
-//! knows, generated from one list ([`closed_set!`]); the loader
+//! knows, generated from one list (`closed_set!`); the loader
 //! ([`crate::Model`], [`crate::Style`]) and the executors
 //! ([`crate::Runtime`], [`crate::StyledRuntime`]) only go through it.
 //!
