@@ -42,9 +42,9 @@ use cortex_m_rt::{entry, exception, ExceptionFrame};
 use defmt::{error, info, Display2Format};
 use defmt_semihosting as _;
 use phasegate::blob::{LayerOp, MAGIC};
+use phasegate::{Model, Phase, Runtime, Style};
 #[cfg(feature = "controller")]
-use phasegate::controller::{layout, Locomotion, Network};
-use phasegate::{Model, Phase, Style, StyledRuntime};
+use phasegate_controller::{layout, Locomotion, Network};
 use semihosting::fs::File;
 use semihosting::io::Write as _;
 
@@ -73,7 +73,7 @@ const STYLE_ALIGN: usize = 16;
 
 /// The runtime: the base model, its two activation buffers, the adapter
 /// scratch buffer and the bank of styles.
-type Rt = StyledRuntime<'static, W, S, N>;
+type Rt = Runtime<'static, W, S, N>;
 
 /// A `static` handed out once as `&'static mut` (no heap, no `static mut`).
 /// Holds either a value written at run time or a constant initial value
@@ -428,12 +428,20 @@ struct Timed<'r> {
 
 #[cfg(feature = "controller")]
 impl Network<f32> for Timed<'_> {
+    fn input_dim(&self) -> usize {
+        self.rt.model().input_dim()
+    }
+
+    fn output_dim(&self) -> usize {
+        self.rt.model().output_dim()
+    }
+
     fn predict(
         &mut self,
         phase: f32,
-        x: &[f32; layout::INPUTS],
-        y: &mut [f32; layout::OUTPUTS],
-    ) -> phasegate::Result<()> {
+        x: &[f32],
+        y: &mut [f32],
+    ) -> phasegate_controller::Result<()> {
         let t0 = measure::now();
         let r = self.rt.predict(phase, x, y);
         self.ticks = self
@@ -442,7 +450,7 @@ impl Network<f32> for Timed<'_> {
         r
     }
 
-    fn mean_output(&self, y: &mut [f32; layout::OUTPUTS]) -> phasegate::Result<()> {
+    fn mean_output(&self, y: &mut [f32]) -> phasegate_controller::Result<()> {
         self.rt.mean_output(y)
     }
 }
@@ -452,7 +460,7 @@ impl Network<f32> for Timed<'_> {
 /// [`init_runtime`].
 #[cfg(feature = "controller")]
 #[inline(never)]
-fn init_locomotion(rt: &Rt) -> Result<&'static mut Locomotion<f32>, phasegate::Error> {
+fn init_locomotion(rt: &Rt) -> phasegate_controller::Result<&'static mut Locomotion<f32>> {
     let state = Locomotion::new(rt)?;
     match LOCOMOTION.init(state) {
         Some(s) => Ok(s),
@@ -468,7 +476,7 @@ fn run_controller(rt: &mut Rt, input: &wire::InputHeader, records: &[u8], calib_
     let model = rt.model();
     let (inputs, outputs) = (model.input_dim(), model.output_dim());
     if inputs != layout::INPUTS || outputs != layout::OUTPUTS {
-        let e = phasegate::Error::NotPfnn {
+        let e = phasegate_controller::Error::NotPfnn {
             inputs: inputs as u32,
             outputs: outputs as u32,
         };
@@ -560,7 +568,7 @@ fn run_controller(rt: &mut Rt, input: &wire::InputHeader, records: &[u8], calib_
 }
 
 /// Makes the runtime and moves it into its static. Not inlined, so the
-/// transient `StyledRuntime` value lives in this short-lived frame rather
+/// transient `Runtime` value lives in this short-lived frame rather
 /// than in `main`'s, which stays on the stack for the whole run.
 #[inline(never)]
 fn init_runtime(model: Model<'static>) -> Result<&'static mut Rt, phasegate::Error> {

@@ -44,7 +44,7 @@
 //! `BadCommand`: exit code [`exit::FRAME_ERROR`]).
 //!
 //! The **mix field** says which style adapters the frame uses
-//! ([`Mix`]; the firmware calls `StyledRuntime::set_mix` with it before the
+//! ([`Mix`]; the firmware calls `Runtime::set_mix` with it before the
 //! frame). Style ids are the order of the style blobs in the STYLES region
 //! (0 = first):
 //!
@@ -75,17 +75,17 @@
 //! whole-frame ticks, O i16 quantised outputs, O f32 de-quantised outputs.
 //!
 //! Controller-mode records (12 + 4 x [`POSE_VALUES`] = 936 bytes): u32
-//! network ticks (the loop's `Network::predict`: `StyledRuntime::run`,
+//! network ticks (the loop's `Network::predict`: `Runtime::run`,
 //! i.e. input quantisation, inference, de-quantisation), u32 step ticks
 //! (the whole `Locomotion::step`), u32 `Pose::frame`, then the pose's 231
 //! f32 as raw bits ([`encode_pose_record`]): `root_position` (3),
 //! `facing` (2), `joint_positions` (31 x 3), `joint_rotations` (31 x 4,
 //! `[x, y, z, w]`), `contacts` (4), `phase` (1), `gaits` (4).
 
-use phasegate::controller::layout::JOINTS;
-use phasegate::controller::{Command, GaitWeights, Pose};
 use phasegate::style::BlendWeight;
 use phasegate::{Mix, StyleId};
+use phasegate_controller::layout::JOINTS;
+use phasegate_controller::{Command, GaitWeights, Pose};
 
 /// Magic of the input image.
 pub const INPUT_MAGIC: [u8; 4] = *b"PGIN";

@@ -8,7 +8,7 @@ use host_sim::rollout::{
     compare, rollout_cmd, rollout_compare_cmd, run, Precision, Rollout, RolloutArgs,
     RolloutCompareArgs, Script,
 };
-use phasegate::controller::{Command, GaitWeights};
+use phasegate_controller::{Command, GaitWeights};
 use std::path::{Path, PathBuf};
 
 const GOLDEN_FRAMES: usize = 240;

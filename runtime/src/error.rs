@@ -124,22 +124,6 @@ pub enum Error {
         /// The index given.
         index: u32,
     },
-    /// A controller command holds NaN or an infinity; the frame is refused
-    /// and the controller's state is unchanged. (Finite out-of-range values
-    /// are clamped instead.)
-    BadCommand {
-        /// The field, numbered as in `controller::field`: 0-1 velocity,
-        /// 2-3 facing, 4-7 gait stand, walk, jog, crouch.
-        field: u8,
-    },
-    /// The model is not PFNN-shaped (342 inputs, 311 outputs), so the
-    /// locomotion controller cannot drive it.
-    NotPfnn {
-        /// Inputs of the model.
-        inputs: u32,
-        /// Outputs of the model.
-        outputs: u32,
-    },
 }
 
 /// Result with the runtime's [`Error`].
@@ -193,13 +177,6 @@ impl fmt::Display for Error {
                 write!(f, "slice length {found}, model needs {expected}")
             }
             Error::NonFinite { index } => write!(f, "value {index} is NaN or infinite"),
-            Error::BadCommand { field } => {
-                write!(f, "controller command field {field} is NaN or infinite")
-            }
-            Error::NotPfnn { inputs, outputs } => write!(
-                f,
-                "model has {inputs} inputs and {outputs} outputs; a PFNN controller needs 342 and 311"
-            ),
             Error::NotAModel => {
                 f.write_str("blob is a style (adapter) blob, not a model: load it as a style")
             }

@@ -22,7 +22,6 @@
 )]
 
 pub mod blob;
-pub mod controller;
 mod error;
 pub mod fixed;
 /// The former name of [`ops`], kept so existing imports
@@ -42,4 +41,8 @@ pub use fixed::gate::Gate;
 pub use fixed::phase::Phase;
 pub use model::{macs, max_width, ram_bytes, Model, STAGE};
 pub use runtime::Runtime;
-pub use style::{Mix, Style, StyleId, StyledRuntime};
+pub use style::{Mix, Style, StyleId};
+
+/// The former name of a [`Runtime`] with a style bank (`S` scratch
+/// elements, `N` styles): the same type, kept so existing code compiles.
+pub type StyledRuntime<'a, const W: usize, const S: usize, const N: usize> = Runtime<'a, W, S, N>;

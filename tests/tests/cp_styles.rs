@@ -10,7 +10,7 @@ use exporter::quantise::QuantOptions;
 use exporter::style::{build_style, quantise_adapter, run_styled};
 use ndarray::{Array1, Array2};
 use phasegate::style::BlendWeight as U1F15;
-use phasegate::{Error, Mix, Model, Phase, Runtime, Style, StyleId, StyledRuntime};
+use phasegate::{Error, Mix, Model, Phase, Runtime, Style, StyleId};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -163,7 +163,7 @@ fn styles(f: &Fixture) -> Vec<Vec<u8>> {
         .collect()
 }
 
-fn run_one(rt: &mut StyledRuntime<'_, 64, 128, 4>, phase: Phase, x: &[f32]) -> Vec<f32> {
+fn run_one(rt: &mut Runtime<'_, 64, 128, 4>, phase: Phase, x: &[f32]) -> Vec<f32> {
     let mut y = vec![0f32; OUT];
     rt.run(phase, x, &mut y).unwrap();
     y
@@ -177,7 +177,7 @@ fn switching_styles_between_frames_is_exact_and_stateless() {
     let f = fixture(2);
     let blobs = styles(&f);
     let model = Model::from_bytes(&f.blob).unwrap();
-    let mut rt: StyledRuntime<'_, 64, 128, 4> = StyledRuntime::new(model.clone()).unwrap();
+    let mut rt: Runtime<'_, 64, 128, 4> = Runtime::new(model.clone()).unwrap();
     let ids: Vec<StyleId> = blobs
         .iter()
         .map(|b| rt.add_style(Style::from_bytes(b).unwrap()).unwrap())
@@ -196,7 +196,7 @@ fn switching_styles_between_frames_is_exact_and_stateless() {
         let mix = mixes[(frame * 7 + frame / 3) % 4];
         rt.set_mix(mix).unwrap();
         let y = run_one(&mut rt, phase, &x);
-        let mut fresh: StyledRuntime<'_, 64, 128, 4> = StyledRuntime::new(model.clone()).unwrap();
+        let mut fresh: Runtime<'_, 64, 128, 4> = Runtime::new(model.clone()).unwrap();
         for b in &blobs {
             fresh.add_style(Style::from_bytes(b).unwrap()).unwrap();
         }
@@ -300,7 +300,7 @@ fn mismatched_styles_are_refused_clearly() {
     let m1 = Model::from_bytes(&f1.blob).unwrap();
     let m2 = Model::from_bytes(&f2.blob).unwrap();
     let (c1, c2) = (m1.header().payload_crc, m2.header().payload_crc);
-    let mut rt: StyledRuntime<'_, 64, 128, 4> = StyledRuntime::new(m2).unwrap();
+    let mut rt: Runtime<'_, 64, 128, 4> = Runtime::new(m2).unwrap();
     let e = rt
         .add_style(Style::from_bytes(&style).unwrap())
         .unwrap_err();
@@ -343,7 +343,7 @@ fn mismatched_styles_are_refused_clearly() {
     .unwrap();
     q.layers[0].requant[0].frac ^= 1;
     let wrong_formats = encode(&q).unwrap();
-    let mut rt1: StyledRuntime<'_, 64, 128, 4> = StyledRuntime::new(m1.clone()).unwrap();
+    let mut rt1: Runtime<'_, 64, 128, 4> = Runtime::new(m1.clone()).unwrap();
     assert_eq!(
         rt1.add_style(Style::from_bytes(&wrong_layer).unwrap())
             .unwrap_err(),
@@ -376,7 +376,7 @@ fn bank_scratch_and_ids_are_checked() {
     let blobs = styles(&f);
     let model = Model::from_bytes(&f.blob).unwrap();
     // One slot.
-    let mut rt: StyledRuntime<'_, 64, 128, 1> = StyledRuntime::new(model.clone()).unwrap();
+    let mut rt: Runtime<'_, 64, 128, 1> = Runtime::new(model.clone()).unwrap();
     let id = rt.add_style(Style::from_bytes(&blobs[2]).unwrap()).unwrap();
     assert_eq!(
         rt.add_style(Style::from_bytes(&blobs[1]).unwrap())
@@ -398,7 +398,7 @@ fn bank_scratch_and_ids_are_checked() {
     );
     assert_eq!(rt.mix(), Mix::Base);
     // Scratch for two adapter outputs (2 x 20) plus the CP rank (3).
-    let mut small: StyledRuntime<'_, 64, 42, 2> = StyledRuntime::new(model.clone()).unwrap();
+    let mut small: Runtime<'_, 64, 42, 2> = Runtime::new(model.clone()).unwrap();
     assert_eq!(
         small
             .add_style(Style::from_bytes(&blobs[2]).unwrap())
@@ -408,7 +408,7 @@ fn bank_scratch_and_ids_are_checked() {
             capacity: 42
         }
     );
-    let mut exact: StyledRuntime<'_, 64, 43, 2> = StyledRuntime::new(model).unwrap();
+    let mut exact: Runtime<'_, 64, 43, 2> = Runtime::new(model).unwrap();
     assert!(exact
         .add_style(Style::from_bytes(&blobs[2]).unwrap())
         .is_ok());

@@ -12,13 +12,13 @@ use exporter::quantise::QuantOptions;
 use exporter::style::build_style;
 use host_sim::default_model::{self, HIDDEN};
 use ndarray::{Array1, Array2};
-use phasegate::controller::{Command, Gait, Locomotion, PfnnController, Pose};
 use phasegate::style::BlendWeight;
-use phasegate::{Mix, Model, Style, StyleId, StyledRuntime};
+use phasegate::{Mix, Model, Runtime, Style, StyleId};
+use phasegate_controller::{Command, Gait, Locomotion, PfnnController, Pose};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-type Styled<'a> = StyledRuntime<'a, 512, 256, 4>;
+type Styled<'a> = Runtime<'a, 512, 256, 4>;
 
 const FRAMES: usize = 240;
 
@@ -94,8 +94,9 @@ fn joint_gap(a: &Pose<f32>, b: &Pose<f32>) -> f32 {
 fn no_style_is_the_plain_controller_bit_for_bit() {
     let blobs = style_blobs();
     let styled = run_styled(&blobs, |_| Mix::Base);
-    let mut plain: Box<PfnnController<'_, 512>> =
-        Box::new(PfnnController::new(Model::from_bytes(default_model::BLOB).unwrap()).unwrap());
+    let mut plain: Box<PfnnController<Runtime<'_, 512>>> = Box::new(
+        PfnnController::from_model(Model::from_bytes(default_model::BLOB).unwrap()).unwrap(),
+    );
     for (f, s) in styled.iter().enumerate() {
         let p = plain.step(&command(f)).unwrap();
         assert_eq!(p, s, "frame {f}");

@@ -2,16 +2,22 @@
 //! reference) and in f32 (to measure what rounding alone does).
 
 use exporter::net::{ExpertLayer, GatingMode, Net};
-use phasegate::controller::layout::{INPUTS, OUTPUTS};
-use phasegate::controller::Network;
-use phasegate::Result;
+use phasegate_controller::{Network, Result};
 use std::f64::consts::TAU;
 
 /// The f64 reference network (`Net::forward`).
 pub struct FloatNet64<'a>(pub &'a Net);
 
 impl Network<f64> for FloatNet64<'_> {
-    fn predict(&mut self, phase: f64, x: &[f64; INPUTS], y: &mut [f64; OUTPUTS]) -> Result<()> {
+    fn input_dim(&self) -> usize {
+        self.0.xmean.len()
+    }
+
+    fn output_dim(&self) -> usize {
+        self.0.ymean.len()
+    }
+
+    fn predict(&mut self, phase: f64, x: &[f64], y: &mut [f64]) -> Result<()> {
         let out = self.0.forward(x, phase * TAU);
         for (d, s) in y.iter_mut().zip(out) {
             *d = s;
@@ -19,7 +25,7 @@ impl Network<f64> for FloatNet64<'_> {
         Ok(())
     }
 
-    fn mean_output(&self, y: &mut [f64; OUTPUTS]) -> Result<()> {
+    fn mean_output(&self, y: &mut [f64]) -> Result<()> {
         for (d, &s) in y.iter_mut().zip(&self.0.ymean) {
             *d = s;
         }
@@ -135,7 +141,15 @@ impl FloatNet32 {
 }
 
 impl Network<f32> for FloatNet32 {
-    fn predict(&mut self, phase: f32, x: &[f32; INPUTS], y: &mut [f32; OUTPUTS]) -> Result<()> {
+    fn input_dim(&self) -> usize {
+        self.xmean.len()
+    }
+
+    fn output_dim(&self) -> usize {
+        self.ymean.len()
+    }
+
+    fn predict(&mut self, phase: f32, x: &[f32], y: &mut [f32]) -> Result<()> {
         let out = self.forward(x, f64::from(phase) * TAU);
         for (d, s) in y.iter_mut().zip(out) {
             *d = s;
@@ -143,7 +157,7 @@ impl Network<f32> for FloatNet32 {
         Ok(())
     }
 
-    fn mean_output(&self, y: &mut [f32; OUTPUTS]) -> Result<()> {
+    fn mean_output(&self, y: &mut [f32]) -> Result<()> {
         for (d, &s) in y.iter_mut().zip(&self.ymean) {
             *d = s;
         }

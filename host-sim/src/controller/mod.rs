@@ -1,5 +1,5 @@
 //! The controllers on the host: the fixed-point `PfnnController` and the
-//! float reference, which is the very same loop (`phasegate::controller::
+//! float reference, which is the very same loop (`phasegate_controller::
 //! Locomotion`) run in `f64` (or `f32`) over the float network. Fixed and
 //! float therefore differ only in the network's arithmetic and in rounding.
 
@@ -9,9 +9,9 @@ pub use float_net::{FloatNet32, FloatNet64};
 
 use anyhow::{anyhow, Result};
 use exporter::net::Net;
-use phasegate::controller::layout::{Outputs, JOINTS, OUTPUTS};
-use phasegate::controller::{Command, Locomotion, Network, PfnnController, Pose, Real};
-use phasegate::Model;
+use phasegate::{Model, Runtime};
+use phasegate_controller::layout::{Outputs, JOINTS, OUTPUTS};
+use phasegate_controller::{Command, Locomotion, Network, PfnnController, Pose, Real};
 
 /// Activation buffer capacity of host controllers (elements per buffer):
 /// enough for the published PFNN (512) with room to spare.
@@ -28,9 +28,13 @@ pub trait Controller {
     fn describe(&self) -> String;
 }
 
+/// The device controller's type on the host: the loop over a runtime
+/// with [`HOST_WIDTH`]-element buffers.
+pub type HostController<'a> = PfnnController<Runtime<'a, HOST_WIDTH>>;
+
 /// The device controller, on the host.
 pub struct FixedController<'a> {
-    inner: Box<PfnnController<'a, HOST_WIDTH>>,
+    inner: Box<HostController<'a>>,
     label: String,
 }
 
@@ -38,7 +42,8 @@ impl<'a> FixedController<'a> {
     /// Loads and validates `blob`.
     pub fn new(blob: &'a [u8], label: impl Into<String>) -> Result<Self> {
         let model = Model::from_bytes(blob).map_err(|e| anyhow!("model blob: {e}"))?;
-        let inner = Box::new(PfnnController::new(model).map_err(|e| anyhow!("controller: {e}"))?);
+        let inner =
+            Box::new(PfnnController::from_model(model).map_err(|e| anyhow!("controller: {e}"))?);
         Ok(FixedController {
             inner,
             label: label.into(),
@@ -46,7 +51,7 @@ impl<'a> FixedController<'a> {
     }
 
     /// The controller itself.
-    pub fn inner(&self) -> &PfnnController<'a, HOST_WIDTH> {
+    pub fn inner(&self) -> &HostController<'a> {
         &self.inner
     }
 
@@ -54,7 +59,7 @@ impl<'a> FixedController<'a> {
     /// model (`W` = its widest layer) rather than for any model as on the
     /// host: `PfnnController::<W>::RAM_BYTES`, bytes.
     pub fn device_ram_bytes(&self) -> usize {
-        let need = self.inner.runtime().model().buffer_elements();
+        let need = self.inner.network().model().buffer_elements();
         device_ram_bytes(need)
     }
 }
@@ -62,7 +67,7 @@ impl<'a> FixedController<'a> {
 /// `PfnnController::<W>::RAM_BYTES` for a run-time `W`: the host type's size
 /// less the activation buffers it has beyond `W` (two i16 buffers).
 pub fn device_ram_bytes(width: usize) -> usize {
-    PfnnController::<HOST_WIDTH>::RAM_BYTES - 2 * 2 * (HOST_WIDTH - width.min(HOST_WIDTH))
+    HostController::RAM_BYTES - 2 * 2 * (HOST_WIDTH - width.min(HOST_WIDTH))
 }
 
 impl Controller for FixedController<'_> {
@@ -73,7 +78,7 @@ impl Controller for FixedController<'_> {
 
     fn mean_pose(&self) -> [[f64; 3]; JOINTS] {
         let mut y = [0f32; OUTPUTS];
-        match Network::mean_output(self.inner.runtime(), &mut y) {
+        match Network::mean_output(self.inner.network(), &mut y) {
             Ok(()) => mean_positions(&y),
             Err(_) => [[0.0; 3]; JOINTS],
         }
@@ -179,7 +184,13 @@ mod tests {
 
     #[test]
     fn device_ram_matches_the_device_type() {
-        assert_eq!(device_ram_bytes(512), PfnnController::<512>::RAM_BYTES);
-        assert_eq!(device_ram_bytes(342), PfnnController::<342>::RAM_BYTES);
+        assert_eq!(
+            device_ram_bytes(512),
+            PfnnController::<Runtime<'static, 512>>::RAM_BYTES
+        );
+        assert_eq!(
+            device_ram_bytes(342),
+            PfnnController::<Runtime<'static, 342>>::RAM_BYTES
+        );
     }
 }

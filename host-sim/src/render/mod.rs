@@ -5,7 +5,7 @@ pub mod canvas;
 mod font;
 
 use anyhow::{bail, Result};
-use phasegate::controller::layout::{JOINTS, PARENTS};
+use phasegate_controller::layout::{JOINTS, PARENTS};
 use std::path::PathBuf;
 
 use crate::rollout::compare::{compare, root_relative};

@@ -1,9 +1,9 @@
 //! Two rollouts of the same command stream, frame by frame.
 
 use anyhow::{bail, Result};
-use phasegate::controller::geom::unyaw3;
-use phasegate::controller::layout::JOINTS;
-use phasegate::controller::Pose;
+use phasegate_controller::geom::unyaw3;
+use phasegate_controller::layout::JOINTS;
+use phasegate_controller::Pose;
 use serde::Serialize;
 use std::f64::consts::TAU;
 use std::fmt::Write;

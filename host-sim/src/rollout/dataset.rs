@@ -138,14 +138,14 @@ pub fn rollout_dataset_cmd(args: &RolloutDatasetArgs) -> Result<()> {
         .map(|s| Script::load(s))
         .collect::<Result<Vec<_>>>()?;
     let net = load_reference(&args.pfnn, args.gating)?;
-    if net.input_dim() != phasegate::controller::layout::INPUTS
-        || net.output_dim() != phasegate::controller::layout::OUTPUTS
+    if net.input_dim() != phasegate_controller::layout::INPUTS
+        || net.output_dim() != phasegate_controller::layout::OUTPUTS
     {
         bail!(
             "{}: the controller needs a PFNN-shaped model ({} inputs, {} outputs), this one has {} and {}",
             args.pfnn.display(),
-            phasegate::controller::layout::INPUTS,
-            phasegate::controller::layout::OUTPUTS,
+            phasegate_controller::layout::INPUTS,
+            phasegate_controller::layout::OUTPUTS,
             net.input_dim(),
             net.output_dim()
         );

@@ -1,6 +1,6 @@
 //! Physical sanity metrics: is a rollout plausible, without looking at it?
 
-use phasegate::controller::layout::{CONTACT_JOINTS, PARENTS};
+use phasegate_controller::layout::{CONTACT_JOINTS, PARENTS};
 use serde::Serialize;
 use std::f64::consts::{PI, TAU};
 use std::fmt;
@@ -166,7 +166,7 @@ impl fmt::Display for Sanity {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use phasegate::controller::Pose;
+    use phasegate_controller::Pose;
 
     #[test]
     fn quantiles_interpolate() {

@@ -98,7 +98,7 @@ pub fn rollout_from_args(args: &RolloutArgs) -> Result<(Rollout, String)> {
         let mut ctl = FixedController::new(&blob, format!("fixed point ({})", model.display()))
             .map_err(|e| anyhow!("{}: {e}", model.display()))?;
         let ram = ctl.device_ram_bytes();
-        let state = phasegate::controller::PfnnController::<8>::STATE_RAM_BYTES;
+        let state = crate::controller::HostController::STATE_RAM_BYTES;
         let r = run(&mut ctl, &script, args.frames)?;
         let label = format!(
             "{}\ncontroller RAM on a device sized for this model: {ram} bytes ({state} of loop state, the rest activations and header)",

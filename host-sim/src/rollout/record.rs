@@ -19,8 +19,8 @@
 
 use anyhow::{anyhow, bail, Result};
 use exporter::npz::{read_npz, write_npz, NpArray};
-use phasegate::controller::layout::{JOINTS, PARENTS};
-use phasegate::controller::{Command, GaitWeights, Pose};
+use phasegate_controller::layout::{JOINTS, PARENTS};
+use phasegate_controller::{Command, GaitWeights, Pose};
 use std::collections::BTreeMap;
 use std::f64::consts::TAU;
 use std::path::Path;

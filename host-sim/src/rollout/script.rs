@@ -28,8 +28,8 @@
 //! clamped by the controller, NaN cannot be written in JSON.
 
 use anyhow::{bail, Context, Result};
-use phasegate::controller::geom::turn2;
-use phasegate::controller::{Command, Gait, GaitWeights};
+use phasegate_controller::geom::turn2;
+use phasegate_controller::{Command, Gait, GaitWeights};
 use serde::Deserialize;
 use std::path::Path;
 

@@ -17,7 +17,7 @@
 //! the styled controller's own rollouts (`--rounds`, DAgger-style: a state
 //! is labelled with the transformed base output of its unstyled
 //! equivalent), exported as an int8 style blob, and rolled out on a
-//! held-out script in fixed point (`StyledRuntime`) and float, alone,
+//! held-out script in fixed point (`Runtime`) and float, alone,
 //! blended, and switched between frames.
 
 use anyhow::{Context, Result};
@@ -29,10 +29,10 @@ use exporter::net::{Adapter, CpLayer, Net, NetLayer};
 use exporter::quantise::QuantOptions;
 use exporter::style::{build_style, StyleReport};
 use ndarray::{concatenate, Array1, Array2, Axis};
-use phasegate::controller::layout::JOINTS;
-use phasegate::controller::{Command, Gait};
 use phasegate::style::BlendWeight;
 use phasegate::{Mix, StyleId};
+use phasegate_controller::layout::JOINTS;
+use phasegate_controller::{Command, Gait};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
@@ -463,7 +463,7 @@ pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
     let blob_refs: Vec<&[u8]> = blobs.iter().map(Vec::as_slice).collect();
     let fixed_run = |mix: &dyn Fn(usize) -> Mix| -> Result<Run> {
         let mut fx = StyledFixed::new(&base_blob, &blob_refs)?;
-        let mut state = phasegate::controller::Locomotion::<f32>::new(&fx)
+        let mut state = phasegate_controller::Locomotion::<f32>::new(&fx)
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         let mut run = Run::default();
         for (f, c) in eval.iter().enumerate() {
@@ -522,14 +522,14 @@ pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
     let frames = [90usize, 150, 210, 270, 330, 390, 450, 510];
     let names = ["crouch", "swing"];
     let blend_label = mix_label(half, &names);
-    let rows: [(&str, &[phasegate::controller::Pose<f64>], &str); 4] = [
+    let rows: [(&str, &[phasegate_controller::Pose<f64>], &str); 4] = [
         ("base (int8, fixed point)", &base_fixed.poses, "#1f5fbf"),
         ("crouch style", &styled_fixed[0].poses, "#d9661f"),
         ("swing style", &styled_fixed[1].poses, "#2a9d3a"),
         (&blend_label, &blend.poses, "#8a3ab9"),
     ];
     let title = format!(
-        "PFNN with rank-{} CP style adapters (int8 StyledRuntime), held-out script, side views in root space",
+        "PFNN with rank-{} CP style adapters (int8 Runtime), held-out script, side views in root space",
         args.rank
     );
     super::png_side_views(&rows, &frames, &title, &args.out.join("styles.png"))?;

@@ -1,5 +1,6 @@
 //! Styles on the host: the styled networks behind the controller loop
-//! (float reference with adapters, and the fixed-point `StyledRuntime`),
+//! (float reference with adapters, and the fixed-point `Runtime` with its
+//! style bank),
 //! rollouts, style metrics and pictures, and the adapter-learning
 //! demonstration ([`demo`]).
 
@@ -7,9 +8,9 @@ pub mod demo;
 
 use anyhow::{anyhow, Result};
 use exporter::net::{Adapter, Net};
-use phasegate::controller::layout::{INPUTS, JOINTS, OUTPUTS};
-use phasegate::controller::{Command, Locomotion, Network, Pose, Real};
-use phasegate::{Mix, Model, Style, StyledRuntime};
+use phasegate::{Mix, Model, Runtime, Style};
+use phasegate_controller::layout::JOINTS;
+use phasegate_controller::{Command, Locomotion, Network, Pose, Real};
 use std::f64::consts::TAU;
 use std::fmt::Write as _;
 
@@ -22,12 +23,20 @@ pub struct StyledFloat<'a> {
 }
 
 impl Network<f64> for StyledFloat<'_> {
+    fn input_dim(&self) -> usize {
+        self.net.xmean.len()
+    }
+
+    fn output_dim(&self) -> usize {
+        self.net.ymean.len()
+    }
+
     fn predict(
         &mut self,
         phase: f64,
-        x: &[f64; INPUTS],
-        y: &mut [f64; OUTPUTS],
-    ) -> phasegate::Result<()> {
+        x: &[f64],
+        y: &mut [f64],
+    ) -> phasegate_controller::Result<()> {
         let out = self.net.forward_trace(x, phase * TAU, &self.adapters).y;
         for (d, s) in y.iter_mut().zip(out) {
             *d = s;
@@ -35,7 +44,7 @@ impl Network<f64> for StyledFloat<'_> {
         Ok(())
     }
 
-    fn mean_output(&self, y: &mut [f64; OUTPUTS]) -> phasegate::Result<()> {
+    fn mean_output(&self, y: &mut [f64]) -> phasegate_controller::Result<()> {
         for (d, &s) in y.iter_mut().zip(&self.net.ymean) {
             *d = s;
         }
@@ -59,14 +68,14 @@ pub const BANK: usize = 8;
 /// on the device).
 pub struct StyledFixed<'a> {
     /// The runtime.
-    pub rt: Box<StyledRuntime<'a, WIDTH, SCRATCH, BANK>>,
+    pub rt: Box<Runtime<'a, WIDTH, SCRATCH, BANK>>,
 }
 
 impl<'a> StyledFixed<'a> {
     /// A base blob and style blobs, all validated and attached.
     pub fn new(base: &'a [u8], styles: &[&'a [u8]]) -> Result<Self> {
         let model = Model::from_bytes(base).map_err(|e| anyhow!("base blob: {e}"))?;
-        let mut rt = Box::new(StyledRuntime::new(model).map_err(|e| anyhow!("{e}"))?);
+        let mut rt = Box::new(Runtime::new(model).map_err(|e| anyhow!("{e}"))?);
         for (i, s) in styles.iter().enumerate() {
             let style = Style::from_bytes(s).map_err(|e| anyhow!("style {i}: {e}"))?;
             rt.add_style(style).map_err(|e| anyhow!("style {i}: {e}"))?;
@@ -76,16 +85,24 @@ impl<'a> StyledFixed<'a> {
 }
 
 impl Network<f32> for StyledFixed<'_> {
+    fn input_dim(&self) -> usize {
+        self.rt.input_dim()
+    }
+
+    fn output_dim(&self) -> usize {
+        self.rt.output_dim()
+    }
+
     fn predict(
         &mut self,
         phase: f32,
-        x: &[f32; INPUTS],
-        y: &mut [f32; OUTPUTS],
-    ) -> phasegate::Result<()> {
+        x: &[f32],
+        y: &mut [f32],
+    ) -> phasegate_controller::Result<()> {
         self.rt.predict(phase, x, y)
     }
 
-    fn mean_output(&self, y: &mut [f32; OUTPUTS]) -> phasegate::Result<()> {
+    fn mean_output(&self, y: &mut [f32]) -> phasegate_controller::Result<()> {
         self.rt.mean_output(y)
     }
 }
@@ -247,7 +264,7 @@ pub fn svg_side_views(
     );
     let _ = writeln!(s, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
     let _ = writeln!(s, r#"<text x="10" y="24" font-size="16">{title}</text>"#);
-    let parents = phasegate::controller::layout::PARENTS;
+    let parents = phasegate_controller::layout::PARENTS;
     for (row, (name, poses, colour)) in runs.iter().enumerate() {
         let y0 = 40.0 + cell_h * row as f64;
         let _ = writeln!(
@@ -316,7 +333,7 @@ pub fn png_side_views(
         [(v >> 16) as u8, (v >> 8) as u8, v as u8]
     };
     let lighter = |rgb: [u8; 3]| rgb.map(|v| (f64::from(v) * 0.45 + 255.0 * 0.55) as u8);
-    let parents = phasegate::controller::layout::PARENTS;
+    let parents = phasegate_controller::layout::PARENTS;
     for (row, (name, poses, colour)) in runs.iter().enumerate() {
         let (near, far) = (hex(colour), lighter(hex(colour)));
         let y0 = top + cell_h * row as f64;
@@ -353,14 +370,15 @@ pub fn png_side_views(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use phasegate::controller::{Gait, PfnnController};
+    use phasegate_controller::{Gait, PfnnController};
 
     /// The PNG has the layout asked for, and its title and row labels are
     /// drawn (the raster is otherwise white above the first skeletons).
     #[test]
     fn side_views_png_has_rows_columns_and_labels() {
         let model = Model::from_bytes(crate::default_model::BLOB).unwrap();
-        let mut ctl: Box<PfnnController<'_, 512>> = Box::new(PfnnController::new(model).unwrap());
+        let mut ctl: Box<PfnnController<phasegate::Runtime<'_, 512>>> =
+            Box::new(PfnnController::from_model(model).unwrap());
         let poses: Vec<Pose<f64>> = (0..30)
             .map(|_| widen(ctl.step(&Command::moving([0.0, 1.5], Gait::Walk)).unwrap()))
             .collect();

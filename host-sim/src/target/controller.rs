@@ -1,5 +1,5 @@
 //! `host-sim target --controller SCRIPT`: the locomotion loop
-//! (`Locomotion<f32>` over the styled runtime) on the Cortex-M4 firmware
+//! (`Locomotion<f32>` over the runtime with its style bank) on the Cortex-M4 firmware
 //! under QEMU, every pose compared bit for bit with the same loop on the
 //! host (same blob, styles, commands and mixes).
 //!
@@ -14,9 +14,9 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{bail, ensure, Context, Result};
-use phasegate::controller::layout::{INPUTS, JOINTS, OUTPUTS};
-use phasegate::controller::{Command, Locomotion, Pose};
-use phasegate::{Mix, Model, Style, StyledRuntime};
+use phasegate::{Mix, Model, Runtime, Style};
+use phasegate_controller::layout::{INPUTS, JOINTS, OUTPUTS};
+use phasegate_controller::{Command, Locomotion, Pose};
 
 use super::build::build_controller_firmware;
 use super::styles::{self, MixGroup, MixSpec, StyleFile};
@@ -30,13 +30,14 @@ use crate::rollout::Script;
 pub const DEFAULT_CONTROLLER_FRAMES: usize = 60;
 
 /// The one line `host-sim target --controller` refuses a model with when it
-/// is not PFNN-shaped (the runtime's own [`phasegate::Error::NotPfnn`]).
+/// is not PFNN-shaped (the controller's own
+/// [`phasegate_controller::Error::NotPfnn`]).
 pub fn check_pfnn(model: &Model<'_>) -> Result<()> {
     let (inputs, outputs) = (model.input_dim(), model.output_dim());
     if inputs != INPUTS || outputs != OUTPUTS {
         bail!(
             "{}",
-            phasegate::Error::NotPfnn {
+            phasegate_controller::Error::NotPfnn {
                 inputs: inputs as u32,
                 outputs: outputs as u32,
             }
@@ -75,7 +76,7 @@ pub fn controller_image(commands: &[Command], mix_fields: &[[u8; wire::MIX_LEN]]
     image
 }
 
-/// The host reference: `Locomotion<f32>` over the styled runtime with
+/// The host reference: `Locomotion<f32>` over the runtime with
 /// `styles` added in order, each frame's mix set before its step (what the
 /// firmware does). Returns every pose.
 pub fn host_poses(
@@ -85,7 +86,7 @@ pub fn host_poses(
     mixes: &[Mix],
 ) -> Result<Vec<Pose<f32>>> {
     let mut rt = Box::new(
-        StyledRuntime::<'_, HOST_W, HOST_S, HOST_N>::new(model)
+        Runtime::<'_, HOST_W, HOST_S, HOST_N>::new(model)
             .context("the host runtime refuses the model")?,
     );
     for (i, st) in styles.iter().enumerate() {
@@ -212,7 +213,7 @@ pub struct ControllerReport {
     pub first_mismatches: Vec<PoseMismatch>,
     /// Instructions per whole `Locomotion::step`.
     pub step_instructions: Stats,
-    /// Instructions per network call inside the step (`StyledRuntime::run`:
+    /// Instructions per network call inside the step (`Runtime::run`:
     /// input quantisation, inference, de-quantisation).
     pub network_instructions: Stats,
     /// The loop's own cost per step: step minus network, frame by frame.
@@ -332,7 +333,7 @@ impl ControllerReport {
         line(&mut s, "whole Locomotion::step", self.step_instructions);
         line(
             &mut s,
-            "network (StyledRuntime::run: quantise, infer, de-quantise)",
+            "network (Runtime::run: quantise, infer, de-quantise)",
             self.network_instructions,
         );
         line(

@@ -40,7 +40,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{bail, ensure, Context, Result};
-use phasegate::{Mix, Model, Phase, Style, StyledRuntime};
+use phasegate::{Mix, Model, Phase, Runtime, Style};
 
 pub use build::{build_controller_firmware, build_firmware, cargo_build, firmware_dir, repo_root};
 pub use elf::ElfInfo;
@@ -597,7 +597,7 @@ pub fn host_outputs(
 ) -> Result<(Vec<i16>, Vec<f32>)> {
     let out_dim = model.output_dim();
     let mut rt = Box::new(
-        StyledRuntime::<'_, HOST_W, HOST_S, HOST_N>::new(model)
+        Runtime::<'_, HOST_W, HOST_S, HOST_N>::new(model)
             .context("the host runtime refuses the model")?,
     );
     for (i, st) in styles.iter().enumerate() {

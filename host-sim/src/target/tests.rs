@@ -694,7 +694,7 @@ fn styled_dequantise_output_equals_run() {
     let model = Model::from_bytes(&blob).unwrap();
     let stage: Vec<(f32, f32)> = model.input_stage().collect();
     let f = frames::generated(4, &stage, 9);
-    let mut rt: Box<StyledRuntime<'_, 64, 256, 2>> = Box::new(StyledRuntime::new(model).unwrap());
+    let mut rt: Box<Runtime<'_, 64, 256, 2>> = Box::new(Runtime::new(model).unwrap());
     rt.add_style(Style::from_bytes(&style).unwrap()).unwrap();
     rt.set_mix(Mix::One(StyleId(0))).unwrap();
     let mut q_in = vec![0i16; f.input_dim];
@@ -1015,7 +1015,7 @@ fn unknown_style_or_malformed_mix_is_a_frame_error() {
 
 #[test]
 fn command_images_and_pose_records_round_trip() {
-    use phasegate::controller::{Command, GaitWeights, Pose};
+    use phasegate_controller::{Command, GaitWeights, Pose};
     let commands = [
         Command::stand(),
         Command {
@@ -1215,7 +1215,7 @@ fn controller_with_styles_switched_and_blended_is_bit_exact() {
 
 #[test]
 fn controller_refuses_non_pfnn_models_and_bad_commands() {
-    use phasegate::controller::Command;
+    use phasegate_controller::Command;
     let name = "controller_refuses_non_pfnn_models_and_bad_commands";
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("small.blob");

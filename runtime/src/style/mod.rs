@@ -15,21 +15,64 @@
 //! so its output adds to the base layer's pre-activation in i16 before the
 //! base layer's own activation.
 //!
-//! [`StyledRuntime`] runs one base model with any number of styles from
-//! separate flash regions: it refuses a style built for another base
-//! ([`Error::StyleMismatch`]) and switches or blends styles between frames.
-
-mod styled;
+//! [`crate::Runtime`] runs one base model with any number of styles from
+//! separate flash regions (its `S` and `N` parameters): it refuses a style
+//! built for another base ([`Error::StyleMismatch`]) and switches or blends
+//! styles between frames ([`Mix`]).
 
 /// The blend weight of [`Mix::Blend`]: `fixed`'s `U1F15`, `[0, 2)` in steps
 /// of 2^-15 (weights above 1 act as 1).
 pub use fixed::types::U1F15 as BlendWeight;
-pub use styled::{Mix, StyleId, StyledRuntime};
+
+use fixed::types::U1F15;
 
 use crate::blob::{Activation, Framed, Gating, LayerDesc, ModelKind, Section, MAX_STYLE_NAME};
 use crate::error::{Error, Result};
+use crate::fixed::gate::ONE;
 use crate::model::{macs, ram_bytes, validate_gating, STAGE};
 use crate::ops::{GatedOp, Layer};
+
+/// Handle of a style in a [`crate::Runtime`]'s bank.
+#[derive(Clone, Copy, Debug, Eq, PartialEq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StyleId(pub u8);
+
+/// Which adapters a frame uses.
+#[derive(Clone, Copy, Debug, Default, Eq, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Mix {
+    /// No adapter: the base model alone.
+    #[default]
+    Base,
+    /// One style.
+    One(StyleId),
+    /// Two styles, their adapter outputs interpolated:
+    /// `r = (1 - weight) r_from + weight r_to`, `weight` clamped to `[0, 1]`.
+    Blend {
+        /// Style at weight 0.
+        from: StyleId,
+        /// Style at weight 1.
+        to: StyleId,
+        /// Interpolation weight.
+        #[cfg_attr(feature = "defmt", defmt(Debug2Format))]
+        weight: U1F15,
+    },
+}
+
+impl Mix {
+    /// The active styles with their Q16 weights.
+    pub(crate) fn weights(&self) -> [(Option<StyleId>, i64); 2] {
+        let one = i64::from(ONE);
+        match *self {
+            Mix::Base => [(None, 0), (None, 0)],
+            Mix::One(s) => [(Some(s), one), (None, 0)],
+            Mix::Blend { from, to, weight } => {
+                let w = (i64::from(weight.to_bits()) << 1).min(one);
+                [(Some(from), one - w), (Some(to), w)]
+            }
+        }
+    }
+}
 
 /// A validated style blob, borrowed (its weights stay where the blob is).
 #[derive(Clone, Copy, Debug)]

@@ -15,24 +15,54 @@
 //!    lay the predicted future;
 //! 8. advance the phase.
 
-use super::command::{Checked, Command};
-use super::geom::{
+use crate::command::{Checked, Command};
+use crate::error::{Error, Result};
+use crate::geom::{
     canonical, len2, mix_directions, quat_exp, quat_mul, unyaw3, yaw3, yaw_quat, Vec2, Vec3,
 };
-use super::layout::{Inputs, Outputs, INPUTS, JOINTS, OUTPUTS};
-use super::pose::Pose;
-use super::real::Real;
-use super::trajectory::{gait, Gaits, Trajectory, CURRENT};
-use crate::error::{Error, Result};
+use crate::layout::{Inputs, Outputs, INPUTS, JOINTS, OUTPUTS};
+use crate::pose::Pose;
+use crate::real::Real;
+use crate::trajectory::{gait, Gaits, Trajectory, CURRENT};
 
-/// A phase-functioned network as the loop sees it: raw model units in and
-/// out, the phase as a fraction of a cycle.
+/// A phase-gated network as a controller sees it: raw model units in and
+/// out, the phase as a fraction of a cycle. Its widths are its own (a
+/// controller checks them once, when it is made: [`Locomotion`] needs
+/// PFNN's 342 -> 311), so the same trait serves other controllers and
+/// networks: the fixed-point [`phasegate::Runtime`] (plain or styled) on
+/// the device, float references on the host.
 pub trait Network<R> {
-    /// Inference at `phase` (cycles, `[0, 1)`).
-    fn predict(&mut self, phase: R, x: &[R; INPUTS], y: &mut [R; OUTPUTS]) -> Result<()>;
+    /// Width of the input vector.
+    fn input_dim(&self) -> usize;
+    /// Width of the output vector.
+    fn output_dim(&self) -> usize;
+    /// Inference at `phase` (cycles, `[0, 1)`); `x` holds
+    /// [`Network::input_dim`] values, `y` [`Network::output_dim`].
+    fn predict(&mut self, phase: R, x: &[R], y: &mut [R]) -> Result<()>;
     /// The mean output (the data set's `Ymean`): the pose the controller
-    /// starts from.
-    fn mean_output(&self, y: &mut [R; OUTPUTS]) -> Result<()>;
+    /// starts from; `y` holds [`Network::output_dim`] values.
+    fn mean_output(&self, y: &mut [R]) -> Result<()>;
+}
+
+/// [`Error::NotPfnn`] unless `net` is 342 -> 311.
+fn check_pfnn<R>(net: &impl Network<R>) -> Result<()> {
+    let (inputs, outputs) = (net.input_dim(), net.output_dim());
+    if inputs == INPUTS && outputs == OUTPUTS {
+        Ok(())
+    } else {
+        Err(Error::NotPfnn {
+            inputs: inputs as u32,
+            outputs: outputs as u32,
+        })
+    }
+}
+
+/// A layout split that cannot fail (the arrays have the layout's widths).
+fn length_error(n: usize) -> Error {
+    Error::Runtime(phasegate::Error::LengthMismatch {
+        expected: n as u32,
+        found: n as u32,
+    })
 }
 
 /// Smoothing rates per frame, the demo's `Options` defaults.
@@ -77,7 +107,9 @@ pub struct Locomotion<R> {
 impl<R: Real> Locomotion<R> {
     /// The demo's reset: at the origin facing `+z`, joints in the mean pose
     /// (`Ymean`), phase 0.
+    /// Refuses a network that is not PFNN-shaped ([`Error::NotPfnn`]).
     pub fn new(net: &impl Network<R>) -> Result<Self> {
+        check_pfnn(net)?;
         let mut s = Locomotion {
             trajectory: Trajectory::new(),
             velocities: [[R::ZERO; 3]; JOINTS],
@@ -96,11 +128,9 @@ impl<R: Real> Locomotion<R> {
 
     /// Back to the state of [`Locomotion::new`].
     pub fn reset(&mut self, net: &impl Network<R>) -> Result<()> {
-        net.mean_output(&mut self.y)?;
-        let y = Outputs::split(&self.y).ok_or(Error::LengthMismatch {
-            expected: OUTPUTS as u32,
-            found: self.y.len() as u32,
-        })?;
+        check_pfnn(net)?;
+        net.mean_output(&mut self.y[..])?;
+        let y = Outputs::split(&self.y).ok_or(length_error(OUTPUTS))?;
         self.trajectory = Trajectory::new();
         self.target_velocity = [R::ZERO; 2];
         self.target_facing = [R::ZERO, R::ONE];
@@ -155,15 +185,12 @@ impl<R: Real> Locomotion<R> {
             .bend_future(self.target_velocity, self.target_facing, self.strafe);
         let (root, facing) = self.trajectory.root(CURRENT);
         self.build_inputs(root, facing)?;
-        net.predict(self.phase, &self.x, &mut self.y)?;
+        net.predict(self.phase, &self.x[..], &mut self.y[..])?;
         // A float network can overflow; never let it reach the pose.
         if let Some(i) = self.y.iter().position(|v| !v.is_finite()) {
             return Err(Error::NonFinite { index: i as u32 });
         }
-        let y = Outputs::split(&self.y).ok_or(Error::LengthMismatch {
-            expected: OUTPUTS as u32,
-            found: self.y.len() as u32,
-        })?;
+        let y = Outputs::split(&self.y).ok_or(length_error(OUTPUTS))?;
         place_joints(&mut self.pose, &mut self.velocities, &y, root, facing);
         self.pose.root_position = [root[0], R::ZERO, root[1]];
         self.pose.facing = facing;
@@ -222,10 +249,7 @@ impl<R: Real> Locomotion<R> {
 
     /// Step 4: the input vector.
     fn build_inputs(&mut self, root: Vec2<R>, facing: Vec2<R>) -> Result<()> {
-        let mut x = Inputs::split(&mut self.x).ok_or(Error::LengthMismatch {
-            expected: INPUTS as u32,
-            found: INPUTS as u32,
-        })?;
+        let mut x = Inputs::split(&mut self.x).ok_or(length_error(INPUTS))?;
         self.trajectory.write_inputs(root, facing, &mut x);
         // Joints relative to the previous frame's root (where they were
         // placed from); its height is the ground's, 0.

@@ -1,52 +1,60 @@
-//! `PfnnController`: the loop on the fixed-point runtime, for the device.
+//! `PfnnController`: the loop and its network, for the device; and the
+//! runtime as a [`Network`].
 
-use super::command::Command;
-use super::layout::{INPUTS, OUTPUTS};
-use super::locomotion::{Locomotion, Network};
-use super::pose::Pose;
+use phasegate::{Model, Phase, Runtime};
+
+use crate::command::Command;
 use crate::error::{Error, Result};
-use crate::fixed::phase::Phase;
-use crate::model::Model;
-use crate::runtime::Runtime;
-use crate::style::StyledRuntime;
+use crate::locomotion::{Locomotion, Network};
+use crate::pose::Pose;
 
-/// A PFNN locomotion controller: a validated PFNN blob, its activation
-/// buffers (`W` elements each, at least the widest layer: 512 for the
-/// published PFNN) and the loop's state, all in one statically sized value.
-/// Nothing is allocated; put it in a `static` or on a large enough stack.
+/// A PFNN locomotion controller: a network (on the device, the fixed-point
+/// [`Runtime`], whose buffers hold `W` elements each, at least the widest
+/// layer: 512 for the published PFNN) and the loop's state, all in one
+/// statically sized value. Nothing is allocated; put it in a `static` or on
+/// a large enough stack.
 ///
 /// ```text
-/// let mut ctl: PfnnController<'_, 512> = PfnnController::new(Model::from_bytes(BLOB)?)?;
+/// let mut ctl: PfnnController<Runtime<'_, 512>> =
+///     PfnnController::from_model(Model::from_bytes(BLOB)?)?;
 /// loop {
 ///     let pose = ctl.step(&Command::moving([0.0, 2.5], Gait::Walk))?;
 ///     drive(pose.joint_rotations);
 /// }
 /// ```
-pub struct PfnnController<'a, const W: usize> {
-    net: Runtime<'a, W>,
+pub struct PfnnController<N> {
+    net: N,
     state: Locomotion<f32>,
 }
 
-impl<'a, const W: usize> PfnnController<'a, W> {
-    /// Bytes of RAM the whole controller occupies (the runtime's activation
-    /// buffers and copied header included; the weights stay in flash).
-    pub const RAM_BYTES: usize = core::mem::size_of::<Self>();
-
-    /// Bytes of the loop's own state (trajectory, joints, input and output
-    /// vectors, the pose), without the runtime.
-    pub const STATE_RAM_BYTES: usize = core::mem::size_of::<Locomotion<f32>>();
-
-    /// Refuses models that are not PFNN-shaped (342 inputs, 311 outputs) or
-    /// do not fit the buffers; starts in the demo's reset pose.
-    pub fn new(model: Model<'a>) -> Result<Self> {
+impl<'a, const W: usize, const S: usize, const B: usize> PfnnController<Runtime<'a, W, S, B>> {
+    /// A runtime over `model` (refused when it does not fit the buffers)
+    /// driving the loop; see [`PfnnController::new`].
+    pub fn from_model(model: Model<'a>) -> Result<Self> {
         let (inputs, outputs) = (model.input_dim(), model.output_dim());
-        if inputs != INPUTS || outputs != OUTPUTS {
+        if inputs != crate::layout::INPUTS || outputs != crate::layout::OUTPUTS {
             return Err(Error::NotPfnn {
                 inputs: inputs as u32,
                 outputs: outputs as u32,
             });
         }
-        let net = Runtime::new(model)?;
+        Self::new(Runtime::new(model)?)
+    }
+}
+
+impl<N: Network<f32>> PfnnController<N> {
+    /// Bytes of RAM the whole controller occupies (for a runtime: its
+    /// activation buffers and copied header included; the weights stay in
+    /// flash).
+    pub const RAM_BYTES: usize = core::mem::size_of::<Self>();
+
+    /// Bytes of the loop's own state (trajectory, joints, input and output
+    /// vectors, the pose), without the network.
+    pub const STATE_RAM_BYTES: usize = core::mem::size_of::<Locomotion<f32>>();
+
+    /// Refuses networks that are not PFNN-shaped (342 inputs, 311 outputs,
+    /// [`Error::NotPfnn`]); starts in the demo's reset pose.
+    pub fn new(net: N) -> Result<Self> {
         let state = Locomotion::new(&net)?;
         Ok(PfnnController { net, state })
     }
@@ -71,9 +79,15 @@ impl<'a, const W: usize> PfnnController<'a, W> {
         &self.state
     }
 
-    /// The runtime.
-    pub fn runtime(&self) -> &Runtime<'a, W> {
+    /// The network.
+    pub fn network(&self) -> &N {
         &self.net
+    }
+
+    /// The network, mutably (for a styled runtime: set its mix between
+    /// two steps).
+    pub fn network_mut(&mut self) -> &mut N {
+        &mut self.net
     }
 
     /// [`Self::RAM_BYTES`], for callers holding a value.
@@ -93,59 +107,51 @@ pub fn phase_from_cycles(cycles: f32) -> Phase {
     Phase::from_bits(bits.min(u64::from(u32::MAX)) as u32)
 }
 
-impl<const W: usize> Network<f32> for Runtime<'_, W> {
-    fn predict(&mut self, phase: f32, x: &[f32; INPUTS], y: &mut [f32; OUTPUTS]) -> Result<()> {
-        self.run(phase_from_cycles(phase), x, y)
-    }
-
-    fn mean_output(&self, y: &mut [f32; OUTPUTS]) -> Result<()> {
-        mean_output_of(self.model(), y)
-    }
-}
-
-/// A styled runtime drives the same loop: set its mix between two
+/// The runtime drives the loop, plain or styled: set its mix between two
 /// [`Locomotion::step`]s to switch or blend styles. The loop's state (the
 /// phase included) is the caller's and no style touches it.
-impl<const W: usize, const S: usize, const N: usize> Network<f32> for StyledRuntime<'_, W, S, N> {
-    fn predict(&mut self, phase: f32, x: &[f32; INPUTS], y: &mut [f32; OUTPUTS]) -> Result<()> {
-        self.run(phase_from_cycles(phase), x, y)
+impl<const W: usize, const S: usize, const B: usize> Network<f32> for Runtime<'_, W, S, B> {
+    fn input_dim(&self) -> usize {
+        self.model().input_dim()
     }
 
-    /// The base's mean output: the loop starts from the same pose whatever
-    /// the style.
-    fn mean_output(&self, y: &mut [f32; OUTPUTS]) -> Result<()> {
-        mean_output_of(self.model(), y)
+    fn output_dim(&self) -> usize {
+        self.model().output_dim()
     }
-}
 
-/// The output stage's offsets: the exporter stores `Ymean` there (a zero
-/// network output de-quantises to it).
-fn mean_output_of(model: &Model<'_>, y: &mut [f32; OUTPUTS]) -> Result<()> {
-    let mut n = 0;
-    for (o, (_, offset)) in y.iter_mut().zip(model.output_stage()) {
-        *o = offset;
-        n += 1;
+    fn predict(&mut self, phase: f32, x: &[f32], y: &mut [f32]) -> Result<()> {
+        Ok(self.run(phase_from_cycles(phase), x, y)?)
     }
-    if n == OUTPUTS {
+
+    /// The base's mean output (the output stage's offsets: the exporter
+    /// stores `Ymean` there, a zero network output de-quantises to it): the
+    /// loop starts from the same pose whatever the style.
+    fn mean_output(&self, y: &mut [f32]) -> Result<()> {
+        let model = self.model();
+        let expected = model.output_dim();
+        if y.len() != expected {
+            return Err(Error::Runtime(phasegate::Error::LengthMismatch {
+                expected: expected as u32,
+                found: y.len() as u32,
+            }));
+        }
+        for (o, (_, offset)) in y.iter_mut().zip(model.output_stage()) {
+            *o = offset;
+        }
         Ok(())
-    } else {
-        Err(Error::NotPfnn {
-            inputs: model.input_dim() as u32,
-            outputs: n as u32,
-        })
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::controller::command::{Gait, GaitWeights};
+    use crate::command::{Gait, GaitWeights};
 
     /// The embedded default model of host-sim (random weights, PFNN-shaped).
-    const BLOB: &[u8] = include_bytes!("../../../tests/golden/default/model.blob");
+    const BLOB: &[u8] = include_bytes!("../../tests/golden/default/model.blob");
 
-    fn controller() -> PfnnController<'static, 512> {
-        PfnnController::new(Model::from_bytes(BLOB).unwrap()).unwrap()
+    fn controller() -> PfnnController<Runtime<'static, 512>> {
+        PfnnController::from_model(Model::from_bytes(BLOB).unwrap()).unwrap()
     }
 
     #[test]
@@ -241,16 +247,16 @@ mod tests {
     #[test]
     fn refuses_a_model_of_the_wrong_shape_and_reports_its_ram() {
         let (all, state) = (
-            PfnnController::<'static, 512>::RAM_BYTES,
-            PfnnController::<'static, 512>::STATE_RAM_BYTES,
+            PfnnController::<Runtime<'static, 512>>::RAM_BYTES,
+            PfnnController::<Runtime<'static, 512>>::STATE_RAM_BYTES,
         );
         println!("controller RAM: {all} bytes, of which loop state {state}");
         assert!(all >= state + Runtime::<'static, 512>::CAPACITY_BYTES);
         // Too small buffers are refused, not overrun.
         let m = Model::from_bytes(BLOB).unwrap();
         assert!(matches!(
-            PfnnController::<'static, 16>::new(m),
-            Err(Error::BufferTooSmall { .. })
+            PfnnController::<Runtime<'static, 16>>::from_model(m),
+            Err(Error::Runtime(phasegate::Error::BufferTooSmall { .. }))
         ));
     }
 

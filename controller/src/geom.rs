@@ -8,7 +8,7 @@
 //! demo's `rotate(atan2(d.x, d.z), y)` matrix is exactly this.
 //! Quaternions are `[x, y, z, w]`, scalar last.
 
-use super::real::Real;
+use crate::real::Real;
 
 /// A ground-plane vector `(x, z)`.
 pub type Vec2<R> = [R; 2];

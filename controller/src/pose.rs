@@ -1,8 +1,8 @@
 //! What the controller produces every frame.
 
-use super::geom::{yaw_quat, Quat, Vec2, Vec3};
-use super::layout::JOINTS;
-use super::real::Real;
+use crate::geom::{yaw_quat, Quat, Vec2, Vec3};
+use crate::layout::JOINTS;
+use crate::real::Real;
 
 /// The character at one frame, world space (`y` up, ground at `y = 0`).
 #[derive(Clone, Debug, PartialEq)]

@@ -8,9 +8,9 @@
 //! stops at 110 and saves their RAM. Heights are not stored: the ground is
 //! flat at `y = 0`.
 
-use super::geom::{forward, mix_directions, normalise2, turn2, unyaw2, yaw2, Vec2};
-use super::layout::{Inputs, Outputs, FUTURE_SAMPLES, SAMPLES, SAMPLE_STEP};
-use super::real::Real;
+use crate::geom::{forward, mix_directions, normalise2, turn2, unyaw2, yaw2, Vec2};
+use crate::layout::{Inputs, Outputs, FUTURE_SAMPLES, SAMPLES, SAMPLE_STEP};
+use crate::real::Real;
 
 /// Index of the current frame.
 pub const CURRENT: usize = 60;
@@ -219,7 +219,7 @@ impl<R: Real> Default for Trajectory<R> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::controller::layout::{INPUTS, OUTPUTS};
+    use crate::layout::{INPUTS, OUTPUTS};
 
     #[test]
     fn window_covers_every_sample_the_network_reads() {

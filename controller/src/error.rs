@@ -1,0 +1,71 @@
+//! The one error type of the controller crate.
+
+use core::fmt;
+
+/// Everything that can go wrong when making a controller or stepping it.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum Error {
+    /// The runtime refused something (a model too wide for the buffers, a
+    /// NaN network input, a slice of the wrong length, ...).
+    Runtime(phasegate::Error),
+    /// A command holds NaN or an infinity; the frame is refused and the
+    /// controller's state is unchanged. (Finite out-of-range values are
+    /// clamped instead.)
+    BadCommand {
+        /// The field, numbered as in [`crate::field`]: 0-1 velocity,
+        /// 2-3 facing, 4-7 gait stand, walk, jog, crouch.
+        field: u8,
+    },
+    /// The network is not PFNN-shaped (342 inputs, 311 outputs), so the
+    /// locomotion loop cannot drive it.
+    NotPfnn {
+        /// Inputs of the network.
+        inputs: u32,
+        /// Outputs of the network.
+        outputs: u32,
+    },
+    /// The network gave a NaN or infinite output (only a float network
+    /// can: fixed-point outputs are bounded); the pose is left untouched.
+    NonFinite {
+        /// Index of the first offending output.
+        index: u32,
+    },
+}
+
+/// Result with the controller's [`Error`].
+pub type Result<T> = core::result::Result<T, Error>;
+
+impl From<phasegate::Error> for Error {
+    fn from(e: phasegate::Error) -> Self {
+        Error::Runtime(e)
+    }
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Error::Runtime(e) => e.fmt(f),
+            Error::BadCommand { field } => {
+                write!(f, "controller command field {field} is NaN or infinite")
+            }
+            Error::NotPfnn { inputs, outputs } => write!(
+                f,
+                "model has {inputs} inputs and {outputs} outputs; a PFNN controller needs 342 and 311"
+            ),
+            Error::NonFinite { index } => {
+                write!(f, "network output {index} is NaN or infinite")
+            }
+        }
+    }
+}
+
+impl core::error::Error for Error {
+    fn source(&self) -> Option<&(dyn core::error::Error + 'static)> {
+        match self {
+            Error::Runtime(e) => Some(e),
+            _ => None,
+        }
+    }
+}
