@@ -215,6 +215,13 @@ pub(crate) fn requant_for_blend(
         });
     }
     let pre = (128 - blend.leading_zeros()).saturating_sub(31) as u8;
+    record(spec, i, row_scale, pre)
+}
+
+/// The record of row `i`: after a pre-shift of `pre`, the multiplier that
+/// takes accumulator units (`row_scale` per real unit, gate in Q16) to the
+/// row's target scale.
+fn record(spec: &LayerSpec<'_>, i: usize, row_scale: f64, pre: u8) -> Result<Requant, QuantError> {
     let m_real = spec.targets[i] / (Q16 * row_scale) * f64::from(pre).exp2();
     let (multiplier, post_shift) = fixed_multiplier(m_real).ok_or(QuantError::Scale {
         layer: spec.index,
@@ -354,6 +361,10 @@ pub(crate) fn quantise_rows(
     out
 }
 
+/// The requantisation record of row `i` of a node whose accumulator
+/// (blended over the gate) is at most `bound` for any i16 input: the
+/// smallest pre-shift that leaves `bound` within an i32 with one unit of
+/// slack (the runtime's CP and diagonal checks use the same rule).
 pub(crate) fn requant_for(
     spec: &LayerSpec<'_>,
     i: usize,
@@ -366,18 +377,7 @@ pub(crate) fn requant_for(
             row: i,
         });
     }
-    let pre = shift_to_i32(bound);
-    let m_real = spec.targets[i] / (Q16 * row_scale) * f64::from(pre).exp2();
-    let (multiplier, post_shift) = fixed_multiplier(m_real).ok_or(QuantError::Scale {
-        layer: spec.index,
-        row: i,
-    })?;
-    Ok(Requant {
-        multiplier,
-        pre_shift: pre,
-        post_shift,
-        frac: spec.fracs[i],
-    })
+    record(spec, i, row_scale, shift_to_i32(bound))
 }
 
 pub(crate) fn layer_desc(

@@ -1,32 +1,74 @@
-//! Golden vectors of the default model: inputs, phases and the exact i16
-//! outputs the runtime must produce, checked in under
-//! `tests/golden/default/`. Regenerate with
-//! `cargo run --release -p host-sim -- golden --write tests/golden/default`.
+//! Golden io bundles: for each case, a float source, the blob exported from
+//! it, inputs, phases and the exact i16 (and de-quantised) outputs the
+//! runtime must produce, checked in under `tests/golden/<case>/`. One case
+//! per op kind and weight width:
+//!
+//! | case | network | ops | weights |
+//! |---|---|---|---|
+//! | `default` | the embedded default model (342 -> 32 -> 32 -> 311) | dense x3 | int8 |
+//! | `dense-int16` | the same network | dense x3 | int16 |
+//! | `cp-diagonal` | a synthetic 48 -> 40 -> 40 -> 24 network | CP (rank 12), diagonal, CP (rank 6) | int8 |
+//!
+//! Regenerate them all (after a deliberate change to the arithmetic) with
+//! `cargo run --release -p host-sim -- golden --write tests/golden`, or one
+//! case with `... golden --write tests/golden/<case>`.
 
 use anyhow::{bail, Context, Result};
 use exporter::export::export;
+use exporter::net::Net;
 use exporter::quantise::QuantOptions;
+use phasegate::blob::WeightFormat;
 use std::path::Path;
 
 use crate::accuracy::sample_matrix;
 use crate::default_model;
 use crate::eval::run_fixed;
 use crate::npy::{read_matrix_f32, read_matrix_i16, read_vector_f32, write_matrix, write_vector};
+use crate::target::synthetic;
 
-/// Frames in the golden set.
+/// Frames in each golden set.
 pub const FRAMES: usize = 64;
 /// Seed of the golden inputs.
 pub const INPUT_SEED: u64 = 0x601D_0001;
+/// Every case, by directory name.
+pub const CASES: [&str; 3] = ["default", "dense-int16", "cp-diagonal"];
 
-/// Writes model.npz, model.blob, inputs.npy, phases.npy, expected_q.npy and
-/// expected.npy into `dir`, all derived from the seeds above.
-pub fn write(dir: &Path) -> Result<()> {
+/// The float network of `case` and the options it is exported with.
+fn case_source(case: &str) -> Result<(Net, QuantOptions)> {
+    Ok(match case {
+        "default" => (default_model::generate(), QuantOptions::default()),
+        "dense-int16" => (
+            default_model::generate(),
+            QuantOptions {
+                weights: WeightFormat::I16,
+                ..QuantOptions::default()
+            },
+        ),
+        "cp-diagonal" => (
+            synthetic::cp_net(0x601D_0C9D, 48, 40, 24, 12),
+            QuantOptions::default(),
+        ),
+        _ => bail!("no golden case {case:?} (cases: {})", CASES.join(", ")),
+    })
+}
+
+/// Writes the float source (`model.npz`: the PFNN layout for all-dense
+/// networks, the `cp-import` layout otherwise), model.blob, inputs.npy,
+/// phases.npy, expected_q.npy and expected.npy of `case` into `dir`, all
+/// derived from fixed seeds.
+pub fn write_case(case: &str, dir: &Path) -> Result<()> {
+    let (net, opts) = case_source(case)?;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let net = default_model::generate();
-    exporter::npz::pfnn_to_npz(&net, &dir.join("model.npz"))?;
+    let npz = dir.join("model.npz");
     // Reload so the blob is made from exactly what the .npz holds.
-    let net = exporter::npz::pfnn_from_npz(&dir.join("model.npz"), net.mode)?;
-    let (blob, _) = export(&net, None, &QuantOptions::default())?;
+    let net = if net.layers.iter().all(|l| l.as_dense().is_some()) {
+        exporter::npz::pfnn_to_npz(&net, &npz)?;
+        exporter::npz::pfnn_from_npz(&npz, net.mode)?
+    } else {
+        exporter::cp::import::write_cp_net(&net, &npz)?;
+        exporter::cp::import::read_cp_net(&npz, net.mode)?
+    };
+    let (blob, _) = export(&net, None, &opts)?;
     exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
     let (x, p) = sample_matrix(&net, FRAMES, 1.0, INPUT_SEED);
     let run = run_fixed(&blob, &x, &p)?;
@@ -37,9 +79,33 @@ pub fn write(dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Checks the blob in `dir` against its golden vectors, bit for bit.
-/// Returns the number of frames compared.
+/// Writes the case named by `dir`'s last component into `dir`, or, when
+/// that names no case, every case into `dir/<case>`.
+pub fn write(dir: &Path) -> Result<()> {
+    match dir.file_name().and_then(|n| n.to_str()) {
+        Some(name) if CASES.contains(&name) => write_case(name, dir),
+        _ => CASES.iter().try_for_each(|c| write_case(c, &dir.join(c))),
+    }
+}
+
+/// Checks `dir` against its golden vectors, bit for bit: one bundle when
+/// `dir` holds a `model.blob`, else every case's bundle below it. Returns
+/// the number of frames compared.
 pub fn check(dir: &Path) -> Result<usize> {
+    if dir.join("model.blob").is_file() {
+        return check_bundle(dir);
+    }
+    let mut frames = 0;
+    for case in CASES {
+        let d = dir.join(case);
+        frames += check_bundle(&d).with_context(|| format!("golden case {}", d.display()))?;
+    }
+    Ok(frames)
+}
+
+/// Checks the bundle in `dir` against its golden vectors, bit for bit.
+/// Returns the number of frames compared.
+fn check_bundle(dir: &Path) -> Result<usize> {
     let blob = std::fs::read(dir.join("model.blob"))
         .with_context(|| format!("cannot read {}/model.blob", dir.display()))?;
     let model =

@@ -1,37 +1,76 @@
-//! Golden vectors of the embedded default model: the runtime must give
-//! exactly the checked-in outputs, and the checked-in files must be exactly
-//! what the documented command regenerates.
+//! Golden io bundles, one per op kind and weight width (the embedded
+//! default model among them): the runtime must give exactly the checked-in
+//! outputs, and the checked-in files must be exactly what the documented
+//! command regenerates.
 
 use std::path::{Path, PathBuf};
 
+fn golden_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("golden")
+}
+
 fn golden_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("golden/default")
+    golden_root().join("default")
 }
 
 #[test]
-fn runtime_matches_golden_outputs_bit_for_bit() {
-    let frames = host_sim::golden::check(&golden_dir()).unwrap();
-    assert_eq!(frames, host_sim::golden::FRAMES);
+fn runtime_matches_every_golden_bundle_bit_for_bit() {
+    for case in host_sim::golden::CASES {
+        let frames = host_sim::golden::check(&golden_root().join(case)).unwrap();
+        assert_eq!(frames, host_sim::golden::FRAMES, "{case}");
+    }
+    let all = host_sim::golden::check(&golden_root()).unwrap();
+    assert_eq!(
+        all,
+        host_sim::golden::FRAMES * host_sim::golden::CASES.len()
+    );
+}
+
+#[test]
+fn the_bundles_cover_every_op_kind() {
+    let mut ops = std::collections::BTreeSet::new();
+    for case in host_sim::golden::CASES {
+        let blob = std::fs::read(golden_root().join(case).join("model.blob")).unwrap();
+        let model = phasegate::Model::from_bytes(&blob).unwrap();
+        for l in &model.header().layers {
+            ops.insert(
+                format!("{:?}", l.op)
+                    .split([' ', '{'])
+                    .next()
+                    .unwrap()
+                    .to_string(),
+            );
+            ops.insert(format!("{:?}", l.weights));
+        }
+    }
+    let want: std::collections::BTreeSet<String> = ["Dense", "Cp", "Diagonal", "I8", "I16"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    assert_eq!(ops, want);
 }
 
 #[test]
 fn golden_files_regenerate_byte_for_byte() {
     let tmp = tempfile::tempdir().unwrap();
-    host_sim::golden::write(tmp.path()).unwrap();
-    for name in [
-        "model.npz",
-        "model.blob",
-        "inputs.npy",
-        "phases.npy",
-        "expected_q.npy",
-        "expected.npy",
-    ] {
-        let fresh = std::fs::read(tmp.path().join(name)).unwrap();
-        let checked_in = std::fs::read(golden_dir().join(name)).unwrap();
-        assert!(
-            fresh == checked_in,
-            "{name} differs from a fresh `host-sim golden --write`: regenerate the golden files and review the change"
-        );
+    for case in host_sim::golden::CASES {
+        host_sim::golden::write_case(case, &tmp.path().join(case)).unwrap();
+        for name in [
+            "model.npz",
+            "model.blob",
+            "inputs.npy",
+            "phases.npy",
+            "expected_q.npy",
+            "expected.npy",
+        ] {
+            let fresh = std::fs::read(tmp.path().join(case).join(name)).unwrap();
+            let checked_in = std::fs::read(golden_root().join(case).join(name)).unwrap();
+            assert!(
+                fresh == checked_in,
+                "{case}/{name} differs from a fresh `host-sim golden --write tests/golden`: \
+                 regenerate the golden files and review the change"
+            );
+        }
     }
 }
 

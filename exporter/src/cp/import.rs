@@ -1,7 +1,7 @@
 //! Trained CP factors (and dense or diagonal layers beside them) from
 //! NumPy `.npz` or `.safetensors` files.
 //!
-//! Whole models (a PFNN-shaped network, every layer dense or CP):
+//! Whole models (a PFNN-shaped network, every layer dense, CP or diagonal):
 //!
 //! | name | shape | meaning |
 //! |---|---|---|
@@ -11,7 +11,8 @@
 //! | `B{l}` | (in_l, R_l) | CP factor B of layer l |
 //! | `D{l}` | (K, R_l) | cores: row k is `d_k` of expert k |
 //! | `W{l}` | (K, out_l, in_l) | dense layer l instead of `A/B/D` |
-//! | `b{l}` | (K, out_l) | biases of layer l (both forms) |
+//! | `w{l}` | (K, n_l) | diagonal layer l (`in_l == out_l == n_l`) instead |
+//! | `b{l}` | (K, out_l) | biases of layer l (every form) |
 //!
 //! with `l = 0, 1, 2, ...` consecutive; ELU follows every layer but the last.
 //!
@@ -30,7 +31,9 @@
 //! C order. Every value must be finite.
 
 use anyhow::{anyhow, bail, Context, Result};
+use half::{bf16, f16};
 use ndarray::{Array1, Array2};
+use safetensors::{Dtype, SafeTensors};
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -44,94 +47,36 @@ pub fn read_safetensors(path: &Path) -> Result<BTreeMap<String, NpArray>> {
     parse_safetensors(&bytes).with_context(|| format!("{}", path.display()))
 }
 
-fn f16_to_f64(h: u16) -> f64 {
-    let sign = if h & 0x8000 != 0 { -1.0 } else { 1.0 };
-    let exp = i32::from((h >> 10) & 0x1F);
-    let frac = f64::from(h & 0x3FF);
-    sign * match exp {
-        0 => frac * (-24f64).exp2(),
-        31 if frac == 0.0 => f64::INFINITY,
-        31 => f64::NAN,
-        _ => (1.0 + frac / 1024.0) * f64::from(exp - 15).exp2(),
-    }
-}
-
-/// Parses `.safetensors` bytes: an 8-byte little-endian header length, a
-/// JSON header `{name: {dtype, shape, data_offsets}}`, then the data.
+/// Every float tensor of `.safetensors` bytes, as f64. The container (an
+/// 8-byte header length, the JSON header, the data; offsets in bounds,
+/// contiguous and not overlapping, sizes that fit) is checked by the
+/// `safetensors` crate; here only the dtypes and the values.
 pub fn parse_safetensors(bytes: &[u8]) -> Result<BTreeMap<String, NpArray>> {
-    let n = bytes
-        .get(..8)
-        .map(|b| u64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
-        .ok_or_else(|| anyhow!("not a safetensors file (shorter than 8 bytes)"))?;
-    let n = usize::try_from(n).map_err(|_| anyhow!("header length out of range"))?;
-    let header = bytes
-        .get(8..8usize.saturating_add(n))
-        .ok_or_else(|| anyhow!("not a safetensors file (header length {n} beyond the end)"))?;
-    let data = &bytes[8 + n..];
-    let json: serde_json::Value =
-        serde_json::from_slice(header).context("safetensors header is not JSON")?;
-    let obj = json
-        .as_object()
-        .ok_or_else(|| anyhow!("safetensors header is not a JSON object"))?;
+    let st = SafeTensors::deserialize(bytes)
+        .map_err(|e| anyhow!("not a valid safetensors file: {e}"))?;
     let mut out = BTreeMap::new();
-    for (name, v) in obj {
-        if name == "__metadata__" {
-            continue;
-        }
-        let dtype = v["dtype"]
-            .as_str()
-            .ok_or_else(|| anyhow!("tensor {name}: no dtype"))?;
-        let shape: Vec<u64> = v["shape"]
-            .as_array()
-            .ok_or_else(|| anyhow!("tensor {name}: no shape"))?
-            .iter()
-            .map(|d| {
-                d.as_u64()
-                    .ok_or_else(|| anyhow!("tensor {name}: bad shape"))
-            })
-            .collect::<Result<_>>()?;
-        let offs = v["data_offsets"]
-            .as_array()
-            .ok_or_else(|| anyhow!("tensor {name}: no data_offsets"))?;
-        let (start, end) = match offs.as_slice() {
-            [s, e] => (
-                s.as_u64().unwrap_or(u64::MAX) as usize,
-                e.as_u64().unwrap_or(0) as usize,
-            ),
-            _ => bail!("tensor {name}: bad data_offsets"),
-        };
-        let raw = data
-            .get(start..end)
-            .filter(|_| start <= end)
-            .ok_or_else(|| anyhow!("tensor {name}: data_offsets outside the file"))?;
-        let count: u64 = shape.iter().product();
-        let (width, conv): (usize, fn(&[u8]) -> f64) = match dtype {
-            "F64" => (8, |b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]))),
-            "F32" => (4, |b| {
+    for (name, view) in st.tensors() {
+        let (width, conv): (usize, fn(&[u8]) -> f64) = match view.dtype() {
+            Dtype::F64 => (8, |b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]))),
+            Dtype::F32 => (4, |b| {
                 f64::from(f32::from_le_bytes(b.try_into().unwrap_or([0; 4])))
             }),
-            "F16" => (2, |b| f16_to_f64(u16::from_le_bytes([b[0], b[1]]))),
-            "BF16" => (2, |b| {
-                f64::from(f32::from_bits(
-                    u32::from(u16::from_le_bytes([b[0], b[1]])) << 16,
-                ))
+            Dtype::F16 => (2, |b| {
+                f16::from_le_bytes(b.try_into().unwrap_or([0; 2])).to_f64()
             }),
-            other => bail!("tensor {name} has dtype {other}, expected F64, F32, F16 or BF16"),
+            Dtype::BF16 => (2, |b| {
+                bf16::from_le_bytes(b.try_into().unwrap_or([0; 2])).to_f64()
+            }),
+            other => bail!("tensor {name} has dtype {other:?}, expected F64, F32, F16 or BF16"),
         };
-        if raw.len() as u64 != count * width as u64 {
-            bail!(
-                "tensor {name}: {} bytes for shape {shape:?} of {dtype}",
-                raw.len()
-            );
-        }
-        let values: Vec<f64> = raw.chunks_exact(width).map(conv).collect();
+        let values: Vec<f64> = view.data().chunks_exact(width).map(conv).collect();
         if let Some(k) = values.iter().position(|v| !v.is_finite()) {
             bail!("tensor {name} has a non-finite value at index {k}");
         }
         out.insert(
-            name.clone(),
+            name,
             NpArray {
-                shape,
+                shape: view.shape().iter().map(|&d| d as u64).collect(),
                 data: values,
             },
         );
@@ -249,17 +194,26 @@ pub fn net_from_arrays(arrays: &BTreeMap<String, NpArray>, mode: GatingMode) -> 
     let mut layers = Vec::new();
     let mut width = xmean.len();
     for l in 0.. {
-        let (an, bn, dn, wn, biasn) = (
+        let (an, bn, dn, wn, gn, biasn) = (
             format!("A{l}"),
             format!("B{l}"),
             format!("D{l}"),
             format!("W{l}"),
+            format!("w{l}"),
             format!("b{l}"),
         );
         let layer = if let Some(w) = arrays.get(&wn) {
             let w = dense(w, &wn)?;
             let bias = matrix(get(arrays, &biasn)?, &biasn)?;
             NetLayer::Dense(ExpertLayer { w, b: rows(&bias) })
+        } else if let Some(w) = arrays.get(&gn) {
+            let w = rows(&matrix(w, &gn)?);
+            let b = rows(&matrix(get(arrays, &biasn)?, &biasn)?);
+            let n = w.first().map_or(0, Array1::len);
+            if b.len() != w.len() || b.iter().any(|r| r.len() != n) {
+                bail!("{biasn} must have shape ({}, {n}) like {gn}", w.len());
+            }
+            NetLayer::Diagonal(DiagLayer { w, b })
         } else if arrays.contains_key(&an) {
             NetLayer::Cp(cp_layer(
                 get(arrays, &an)?,
@@ -452,6 +406,14 @@ mod tests {
             ystd: Array1::from(vec![0.5, 8.0]),
             layers: vec![
                 cp(5, 3, 2),
+                NetLayer::Diagonal(DiagLayer {
+                    w: (0..4)
+                        .map(|k| Array1::from_shape_fn(5, |i| (k + i) as f64 * 0.25 - 0.5))
+                        .collect(),
+                    b: (0..4)
+                        .map(|k| Array1::from_shape_fn(5, |i| (k * i) as f64 * 0.5))
+                        .collect(),
+                }),
                 NetLayer::Dense(ExpertLayer {
                     w: (0..4)
                         .map(|k| {
@@ -510,6 +472,48 @@ mod tests {
         assert_eq!(a["h"].data, vec![1.0, -2.5]);
         assert_eq!(a["x"].data, vec![0.1]);
         assert!(parse_safetensors(&bytes[..20]).is_err());
+    }
+
+    /// A safetensors file of the tensors `(name, shape, data_offsets)` over
+    /// `data_len` bytes of F32 zeros.
+    fn safetensors_bytes(tensors: &[(&str, Vec<u64>, [u64; 2])], data_len: usize) -> Vec<u8> {
+        let mut map = serde_json::Map::new();
+        for (n, shape, offs) in tensors {
+            map.insert(
+                n.to_string(),
+                serde_json::json!({"dtype": "F32", "shape": shape, "data_offsets": offs}),
+            );
+        }
+        let mut header = serde_json::Value::Object(map).to_string().into_bytes();
+        while !header.len().is_multiple_of(8) {
+            header.push(b' ');
+        }
+        let mut bytes = (header.len() as u64).to_le_bytes().to_vec();
+        bytes.extend(&header);
+        bytes.resize(bytes.len() + data_len, 0);
+        bytes
+    }
+
+    #[test]
+    fn malformed_safetensors_containers_are_refused() {
+        let ok = safetensors_bytes(&[("a", vec![2], [0, 8]), ("b", vec![2], [8, 16])], 16);
+        assert_eq!(parse_safetensors(&ok).unwrap().len(), 2);
+        // Overlapping tensors (the format forbids them).
+        let overlap = safetensors_bytes(&[("a", vec![2], [0, 8]), ("b", vec![2], [4, 12])], 16);
+        // A shape whose element count overflows 64 bits.
+        let huge = safetensors_bytes(&[("a", vec![1 << 32, 1 << 32, 16], [0, 8])], 8);
+        // A shape that does not match its bytes, and offsets past the end.
+        let short = safetensors_bytes(&[("a", vec![3], [0, 8])], 8);
+        let past = safetensors_bytes(&[("a", vec![2], [0, 8])], 4);
+        for (what, bytes) in [
+            ("overlap", overlap),
+            ("huge", huge),
+            ("short", short),
+            ("past", past),
+        ] {
+            let e = parse_safetensors(&bytes).unwrap_err().to_string();
+            assert!(e.contains("not a valid safetensors file"), "{what}: {e}");
+        }
     }
 
     #[test]

@@ -126,21 +126,21 @@ pub fn from_npy(inputs: &Path, phases: &Path, input_dim: usize) -> Result<Frames
     })
 }
 
-/// The golden vectors' folder of the embedded default model.
-pub fn golden_dir() -> PathBuf {
-    super::build::repo_root()
-        .join("tests")
-        .join("golden")
-        .join("default")
+/// The folder of the golden io bundles (`tests/golden/<case>/`).
+pub fn golden_root() -> PathBuf {
+    super::build::repo_root().join("tests").join("golden")
 }
 
-/// The golden vectors, when `blob` is the embedded default model's blob.
+/// The golden vectors of the bundle whose `model.blob` is `blob` (one per
+/// op kind and weight width, [`crate::golden::CASES`]), if there is one.
 pub fn golden_for(blob: &[u8], input_dim: usize, output_dim: usize) -> Result<Option<Frames>> {
-    let dir = golden_dir();
-    match std::fs::read(dir.join("model.blob")) {
-        Ok(golden_blob) if golden_blob == blob => {}
-        _ => return Ok(None),
-    }
+    let Some(dir) = crate::golden::CASES
+        .iter()
+        .map(|c| golden_root().join(c))
+        .find(|d| std::fs::read(d.join("model.blob")).is_ok_and(|b| b == blob))
+    else {
+        return Ok(None);
+    };
     let mut frames = from_npy(&dir.join("inputs.npy"), &dir.join("phases.npy"), input_dim)?;
     let (qs, q) = read_npy::<i16>(&dir.join("expected_q.npy"))?;
     ensure!(
@@ -206,7 +206,7 @@ pub fn generated(n: usize, input_stage: &[(f32, f32)], seed: u64) -> Frames {
 }
 
 /// Picks the frames for a run: the given `.npy` files, else the golden
-/// vectors when the blob is the embedded default, else generated ones;
+/// vectors when the blob is a golden bundle's, else generated ones;
 /// `frames` keeps the first N (or sets N for generated frames).
 pub fn select(
     inputs: Option<&Path>,

@@ -159,7 +159,7 @@ pub enum Outcome {
 /// Runs every scenario, compares (or, with `overwrite`, rewrites) its
 /// snapshot, and reports every difference before failing.
 pub fn run_snapshots(overwrite: bool) -> Result<Vec<(&'static str, Outcome)>> {
-    let golden = frames::golden_dir();
+    let golden = frames::golden_root().join("default");
     let blob_path = golden.join("model.blob");
     let blob = std::fs::read(&blob_path)
         .with_context(|| format!("cannot read {}", blob_path.display()))?;

@@ -38,13 +38,13 @@ fn qemu_or_skip(test: &str) -> bool {
 }
 
 fn golden_or_skip(test: &str) -> Option<PathBuf> {
-    let blob = frames::golden_dir().join("model.blob");
+    let blob = frames::golden_root().join("default").join("model.blob");
     if blob.exists() {
         Some(blob)
     } else {
         println!(
             "SKIPPED {test}: no golden vectors at {}",
-            frames::golden_dir().display()
+            frames::golden_root().join("default").display()
         );
         None
     }
