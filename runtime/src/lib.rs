@@ -23,13 +23,7 @@
 
 pub mod blob;
 mod error;
-pub mod fixed;
-/// The former name of [`ops`], kept so existing imports
-/// (`phasegate::kernels::cp::{gate_l1_max, MidRecord}`) still resolve.
-pub mod kernels {
-    pub use crate::ops::diagonal as diag;
-    pub use crate::ops::{cp, dense, diagonal};
-}
+pub(crate) mod fixed;
 mod model;
 pub mod ops;
 mod runtime;
@@ -37,9 +31,12 @@ pub mod style;
 
 pub use blob::{blob_len_from_prefix, Header};
 pub use error::{Error, Result};
+pub use fixed::elu::elu_q;
 pub use fixed::gate::Gate;
 pub use fixed::phase::Phase;
-pub use model::{macs, max_width, ram_bytes, Model, STAGE};
+#[cfg(test)]
+pub(crate) use model::max_width;
+pub use model::{macs, ram_bytes, Model, STAGE};
 pub use runtime::Runtime;
 pub use style::{Mix, Style, StyleId};
 

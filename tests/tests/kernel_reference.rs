@@ -6,7 +6,7 @@
 //! contract in the runtime, `runtime/src/ops/contract.rs`
 //! (`cargo test -p phasegate ops::contract`): each op's kernel against its
 //! own i128 reference, its overflow proof at the bound, and its fixed-vs-float
-//! error. Those references apply the runtime's ELU (`phasegate::fixed::elu::elu_q`)
+//! error. Those references apply the runtime's ELU (`phasegate::elu_q`)
 //! and take the runtime's gate (`phasegate::Gate`) as input; this file proves
 //! both equal to the documented ones, for every input.
 //!
@@ -275,7 +275,7 @@ fn runtime_elu_matches_the_reference_for_every_input_and_format() {
         for x in i16::MIN..=i16::MAX {
             let want = elu(x.into(), frac.into(), &table);
             assert_eq!(
-                i128::from(phasegate::fixed::elu::elu_q(x, frac)),
+                i128::from(phasegate::elu_q(x, frac)),
                 want,
                 "x {x} frac {frac}"
             );

@@ -30,7 +30,7 @@ pub const MID_RECORD_LEN: usize = 8;
 
 /// How one rank component turns `t_r * c_r` into the i16 `z_r`:
 /// `z = sat16(round(sat32(round(sat32(round(t >> t_shift)) * c >> pre)) * multiplier >> post))`,
-/// every rounding half up (as [`crate::fixed::round_shift`]).
+/// every rounding half up (as the runtime's `round_shift`).
 #[derive(Clone, Copy, Debug, Eq, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct MidRecord {
