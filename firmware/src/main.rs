@@ -18,8 +18,8 @@
 //! 5. write the stack high-water mark and exit through semihosting.
 //!
 //! Logs are defmt frames on semihosting stdout; `host-sim target` decodes
-//! them. The wire formats and exit codes are in `wire.rs` (shared with
-//! host-sim) and `docs/firmware.md`.
+//! them. The wire formats and exit codes are in the `phasegate-wire` crate
+//! (`wire/`, shared with host-sim) and `docs/firmware.md`.
 #![no_std]
 #![no_main]
 #![deny(
@@ -30,9 +30,8 @@
 )]
 
 mod measure;
-// Shared with host-sim, which uses the decoding half.
-#[allow(dead_code)]
-mod wire;
+// The wire format, shared with host-sim.
+use phasegate_wire as wire;
 
 use core::cell::UnsafeCell;
 use core::mem::MaybeUninit;

@@ -31,9 +31,9 @@ pub mod styles;
 pub mod synthetic;
 #[cfg(test)]
 mod tests;
-/// The host <-> firmware wire format; the same source file the firmware compiles.
-#[path = "../../../firmware/src/wire.rs"]
-pub mod wire;
+/// The host <-> firmware wire format (the `phasegate-wire` crate the
+/// firmware also depends on).
+pub use phasegate_wire as wire;
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

@@ -1,6 +1,6 @@
-//! The host <-> firmware wire format under QEMU (shared source: the firmware
-//! compiles this file as its `wire` module and host-sim includes the same
-//! file with `#[path]`, so both ends read and write one definition).
+//! The host <-> firmware wire format under QEMU: one `no_std` crate
+//! (`phasegate-wire`) that the firmware and host-sim both depend on, so both
+//! ends read and write one definition.
 //!
 //! Only `core` and `phasegate`'s [`Mix`] type, no `unsafe`, no allocation.
 //! All integers and floats are little-endian. Specified in
@@ -82,6 +82,9 @@
 //! `facing` (2), `joint_positions` (31 x 3), `joint_rotations` (31 x 4,
 //! `[x, y, z, w]`), `contacts` (4), `phase` (1), `gaits` (4).
 
+#![cfg_attr(not(test), no_std)]
+#![deny(missing_docs)]
+
 use phasegate::style::BlendWeight;
 use phasegate::{Mix, StyleId};
 use phasegate_controller::layout::JOINTS;
@@ -119,7 +122,7 @@ pub const POSE_RECORD_LEN: usize = 12 + 4 * POSE_VALUES;
 
 /// What the records of an input image hold.
 #[derive(Clone, Copy, Debug, Eq, PartialEq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Mode {
     /// Raw network frames: mix, phase, inputs (mode 0).
     Network,
@@ -148,7 +151,7 @@ impl Mode {
 
 /// Why an input image or output file is refused.
 #[derive(Clone, Copy, Debug, Eq, PartialEq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum WireError {
     /// The magic is wrong: nothing (or something else) was loaded there.
     BadMagic,
