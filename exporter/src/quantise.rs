@@ -6,7 +6,7 @@
 //! * Activations: int16. The input format comes from the declared input range
 //!   in standard deviations of the normalisation statistics; every column of
 //!   a node's input gets its own scale, chosen with the consuming op's
-//!   weights ([`column_scales`]): hidden rows in powers of two (ELU needs to
+//!   weights (`column_scales`): hidden rows in powers of two (ELU needs to
 //!   know where 1.0 is), output rows free scales undone by the output stage.
 //! * Calibration: the float network on inputs drawn from the normalisation
 //!   statistics ([`crate::calibrate`]); ops say how many samples they need.

@@ -316,7 +316,7 @@ pub struct FidelityArgs {
     /// Scripts (built-in names or JSON files); all built-ins if none.
     #[arg(long = "script")]
     pub scripts: Vec<String>,
-    /// Write every rollout here as <script>-<f64|f32|int16|int8>.npz.
+    /// Write every rollout here as `<script>-<f64|f32|int16|int8>.npz`.
     #[arg(long)]
     pub out_dir: Option<std::path::PathBuf>,
     /// Also write the figures as JSON.
