@@ -39,7 +39,3 @@ pub(crate) use model::max_width;
 pub use model::{macs, ram_bytes, Model, STAGE};
 pub use runtime::Runtime;
 pub use style::{Mix, Style, StyleId};
-
-/// The former name of a [`Runtime`] with a style bank (`S` scratch
-/// elements, `N` styles): the same type, kept so existing code compiles.
-pub type StyledRuntime<'a, const W: usize, const S: usize, const N: usize> = Runtime<'a, W, S, N>;

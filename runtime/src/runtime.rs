@@ -29,6 +29,29 @@ use crate::style::{Mix, Style, StyleId};
 /// Styles are stateless: switching or blending between frames changes only
 /// which adapters the next frame adds, never the phase or any other state,
 /// so a switch is exactly as if the new mix had been used all along.
+///
+/// # Example
+///
+/// ```
+/// use phasegate::{Model, Phase, Runtime};
+///
+/// // A blob as it sits in flash: here the repository's golden default model
+/// // (342 inputs, two hidden layers of 32, 311 outputs).
+/// static BLOB: &[u8] = include_bytes!("../../tests/golden/default/model.blob");
+/// let model = Model::from_bytes(BLOB)?; // validates everything, once
+///
+/// // Size the buffers from the blob, like CMSIS-NN's buffer-size queries.
+/// let need = Runtime::<0>::required_elements(&model);
+/// assert_eq!(need, 342);
+/// assert!(Runtime::<341>::new(Model::from_bytes(BLOB)?).is_err());
+///
+/// let mut rt: Runtime<'_, 342> = Runtime::new(model)?;
+/// let (inputs, mut pose) = ([0.5f32; 342], [0f32; 311]);
+/// rt.run(Phase::from_radians(1.25)?, &inputs, &mut pose)?;
+/// assert!(pose.iter().all(|y| y.is_finite()));
+/// assert_eq!(rt.clipped_inputs(), 0);
+/// # Ok::<(), phasegate::Error>(())
+/// ```
 pub struct Runtime<'a, const W: usize, const S: usize = 0, const N: usize = 0> {
     model: Model<'a>,
     styles: heapless::Vec<Style<'a>, N>,

@@ -20,7 +20,7 @@ pub mod cli;
 
 use anyhow::{anyhow, bail, Result};
 use phasegate::blob::{Activation, Gating, Requant, REQUANT_RECORD_LEN};
-use phasegate::{Mix, Model, Phase, Style, StyledRuntime};
+use phasegate::{Mix, Model, Phase, Runtime, Style};
 use serde::Serialize;
 
 use crate::calibrate::normal_inputs;
@@ -213,8 +213,8 @@ pub fn run_styled(
     phases: &[f64],
 ) -> Result<Vec<Vec<f64>>> {
     let model = Model::from_bytes(base_blob).map_err(|e| anyhow!("base blob: {e}"))?;
-    let mut rt: Box<StyledRuntime<'_, 4096, 8192, 8>> =
-        Box::new(StyledRuntime::new(model).map_err(|e| anyhow!("runtime: {e}"))?);
+    let mut rt: Box<Runtime<'_, 4096, 8192, 8>> =
+        Box::new(Runtime::new(model).map_err(|e| anyhow!("runtime: {e}"))?);
     for s in styles {
         let style = Style::from_bytes(s).map_err(|e| anyhow!("style blob: {e}"))?;
         rt.add_style(style).map_err(|e| anyhow!("style: {e}"))?;

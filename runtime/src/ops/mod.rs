@@ -15,7 +15,7 @@
 //! ops share are in `common`. [`Layer`] is the closed set of ops the format
 //! knows, generated from one list (`closed_set!`); the loader
 //! ([`crate::Model`], [`crate::Style`]) and the executors
-//! ([`crate::Runtime`], [`crate::StyledRuntime`]) only go through it.
+//! ([`crate::Runtime`]) only go through it.
 //!
 //! Every op passes one test contract (`ops::contract`, run by
 //! `cargo test -p phasegate`): bit-exact against a plain i128 reference, the

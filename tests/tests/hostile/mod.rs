@@ -28,7 +28,7 @@ pub use phasegate::blob::{
 };
 pub use phasegate::style::BlendWeight;
 pub use phasegate::{
-    blob_len_from_prefix, Error, Mix, Model, Phase, Runtime, Style, StyleId, StyledRuntime, STAGE,
+    blob_len_from_prefix, Error, Mix, Model, Phase, Runtime, Style, StyleId, STAGE,
 };
 pub use proptest::prelude::*;
 pub use rand::{Rng, SeedableRng};
@@ -604,7 +604,7 @@ pub fn mixes(styles: usize) -> Vec<Mix> {
 /// Runs extreme inputs at `phases` through the styled runtime with every
 /// mix; the float and the integer paths agree bit for bit.
 pub fn hammer_styled(base: Model<'_>, styles: &[Style<'_>], phases: &[u32]) -> usize {
-    let Ok(mut rt) = StyledRuntime::<'_, 64, 256, 4>::new(base) else {
+    let Ok(mut rt) = Runtime::<'_, 64, 256, 4>::new(base) else {
         return 0;
     };
     let attached = styles.iter().filter(|s| rt.add_style(**s).is_ok()).count();
