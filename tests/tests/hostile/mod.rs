@@ -362,6 +362,16 @@ pub fn hammer<const W: usize>(model: Model<'_>, phases: &[u32]) -> Vec<Vec<i16>>
     let Ok(mut rt) = Runtime::<W>::new(model) else {
         return Vec::new();
     };
+    run_extremes(&mut rt, phases)
+}
+
+/// Every extreme input at every phase through `rt`, by both paths (float
+/// in and out, and quantised), which must agree to the bit; returns the
+/// quantised outputs.
+pub fn run_extremes<const W: usize, const S: usize, const N: usize>(
+    rt: &mut Runtime<'_, W, S, N>,
+    phases: &[u32],
+) -> Vec<Vec<i16>> {
     let (n, m) = (rt.model().input_dim(), rt.model().output_dim());
     let mut outs = Vec::new();
     for x in extreme_inputs(n) {
@@ -608,26 +618,10 @@ pub fn hammer_styled(base: Model<'_>, styles: &[Style<'_>], phases: &[u32]) -> u
         return 0;
     };
     let attached = styles.iter().filter(|s| rt.add_style(**s).is_ok()).count();
-    let (n, m) = (rt.model().input_dim(), rt.model().output_dim());
     let mut runs = 0;
     for mix in mixes(attached) {
         rt.set_mix(mix).unwrap();
-        for x in extreme_inputs(n) {
-            let mut q = vec![0i16; n];
-            rt.quantise_input(&x, &mut q).unwrap();
-            for &ph in phases {
-                let mut y = vec![0f32; m];
-                rt.run(Phase::from_bits(ph), &x, &mut y).unwrap();
-                let yq = rt.run_quantised(Phase::from_bits(ph), &q).unwrap().to_vec();
-                let mut back = vec![0f32; m];
-                rt.dequantise_output(&yq, &mut back).unwrap();
-                assert_eq!(
-                    back.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-                    y.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
-                );
-                runs += 1;
-            }
-        }
+        runs += run_extremes(&mut rt, phases).len();
     }
     runs
 }
