@@ -20,7 +20,6 @@ use ndarray::Array2;
 use phasegate::blob::{
     AccWidth, Activation, Gating, LayerDesc, LayerOp, ModelKind, Requant, Section, WeightFormat,
 };
-use phasegate::{Gate, Phase};
 use serde::Serialize;
 
 use crate::calibrate::{calibrate, normal_inputs, Ranges};
@@ -72,10 +71,7 @@ fn ser_layer_weights<S: serde::Serializer>(
 }
 
 fn ser_weight_format<S: serde::Serializer>(w: &WeightFormat, s: S) -> Result<S::Ok, S::Error> {
-    s.serialize_str(match w {
-        WeightFormat::I8 => "int8",
-        WeightFormat::I16 => "int16",
-    })
+    s.serialize_str(crate::export::format_name(*w))
 }
 
 impl Default for QuantOptions {
@@ -452,19 +448,6 @@ pub(crate) fn layer_report(
     }
 }
 
-/// Largest `sum_k |g_k|` (Q16) of `gating` over a fine phase grid, plus the
-/// rounding slack of the gate computation.
-pub fn gate_l1_bound(gating: &Gating) -> i64 {
-    let worst = (0..=u16::MAX)
-        .map(|i| {
-            let g = Gate::new(gating, Phase::from_bits(u32::from(i) << 16));
-            g.iter().map(|(_, w)| i64::from(w).abs()).sum::<i64>()
-        })
-        .max()
-        .unwrap_or(1 << 16);
-    worst + 8
-}
-
 /// The blob gating for a float gating mode with `experts` experts.
 pub fn gating_for(mode: GatingMode, experts: usize) -> Result<Gating, QuantError> {
     let n = u16::try_from(experts).map_err(|_| QuantError::Invalid("too many experts".into()))?;
@@ -714,6 +697,7 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
 #[cfg(test)]
 mod tests {
     use super::*;
+    use phasegate::ops::cp::gate_l1_max;
 
     #[test]
     fn multiplier_is_accurate() {
@@ -729,8 +713,8 @@ mod tests {
 
     #[test]
     fn gate_bounds() {
-        assert_eq!(gate_l1_bound(&Gating::Constant { tables: 50 }), 65536 + 8);
-        let cr = gate_l1_bound(&Gating::CatmullRom { points: 4 });
+        assert_eq!(gate_l1_max(&Gating::Constant { tables: 50 }), 65536 + 8);
+        let cr = gate_l1_max(&Gating::CatmullRom { points: 4 });
         assert!((81920..=81940).contains(&cr), "{cr}");
     }
 

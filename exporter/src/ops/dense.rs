@@ -8,10 +8,11 @@
 
 use ndarray::{Array1, Array2};
 use phasegate::blob::{AccWidth, LayerOp};
+use phasegate::ops::cp::gate_l1_max;
 
 use crate::encode::QLayer;
 use crate::quantise::{
-    bits, gate_l1_bound, layer_desc, layer_report, qmax, requant_for_blend, LayerSpec, QuantError,
+    bits, layer_desc, layer_report, qmax, requant_for_blend, LayerSpec, QuantError,
     QuantLayerReport,
 };
 
@@ -147,7 +148,8 @@ pub fn quantise(
     } else {
         AccWidth::I64
     };
-    let gsum = gate_l1_bound(&spec.gating);
+    // The largest sum_k |g_k| any phase gives (Q16), as the runtime bounds it.
+    let gsum = gate_l1_max(&spec.gating);
     let mut requant = Vec::with_capacity(out_dim);
     let (mut max_dot, mut max_blend) = (0.0f64, 0.0f64);
     for (i, r) in l1.iter().enumerate() {
