@@ -441,8 +441,9 @@ pub fn decode_mix(b: &[u8; MIX_LEN]) -> Result<Mix, WireError> {
     })
 }
 
-/// The command's 8 f32, in wire order (see the module docs).
-fn command_values(c: &Command) -> [f32; COMMAND_VALUES] {
+/// The command's 8 f32, in wire order (see the module docs): velocity,
+/// facing, then the gait weights stand, walk, jog, crouch.
+pub fn command_values(c: &Command) -> [f32; COMMAND_VALUES] {
     let g = &c.gait;
     [
         c.velocity[0],

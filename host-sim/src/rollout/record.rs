@@ -60,19 +60,6 @@ impl Rollout {
         let n = self.len() as u64;
         let j = JOINTS as u64;
         let p = &self.poses;
-        let cmd = |c: &Command| {
-            let g = c.gait;
-            [
-                c.velocity[0],
-                c.velocity[1],
-                c.facing[0],
-                c.facing[1],
-                g.stand,
-                g.walk,
-                g.jog,
-                g.crouch,
-            ]
-        };
         vec![
             (
                 "root_position",
@@ -97,7 +84,10 @@ impl Rollout {
             (
                 "commands",
                 vec![n, 8],
-                self.commands.iter().flat_map(cmd).collect(),
+                self.commands
+                    .iter()
+                    .flat_map(phasegate_wire::command_values)
+                    .collect(),
             ),
             (
                 "mean_pose",
