@@ -3,6 +3,7 @@
 pub mod elu;
 pub mod gate;
 pub mod phase;
+pub mod softmax;
 
 /// `v / 2^shift` rounded half up, without the overflow of adding `2^(shift-1)`
 /// first. Shifts of 64 or more give the sign (0 or -1) plus rounding.
