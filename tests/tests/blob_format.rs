@@ -1,31 +1,50 @@
-//! Pins the blob format of `docs/blob-format.md`.
+//! Pins the blob format of `docs/blob-format.md` (format version 2).
 //!
 //! * The byte-level example of the document, built with the real encoder,
 //!   must equal the hex table below byte for byte, load, and run to the value
-//!   the document computes by hand.
+//!   the document computes by hand; the document must show the same bytes.
 //! * The postcard encodings the document lists are checked against postcard.
 //! * A header decoder written from the document alone (`spec`, below) must
-//!   agree with the runtime on every header, including random ones.
-//! * Blobs of other format versions (`fixtures/version0.blob`, a generated
-//!   version 2) are refused with `UnsupportedVersion`.
+//!   agree with the runtime on the example, on real blobs (chains and
+//!   graphs with concatenations and a softmax gate) and on random headers.
+//! * Blobs of other format versions are refused with `UnsupportedVersion`
+//!   before anything else is read: the version-1 record
+//!   (`fixtures/example-v1.blob`, never regenerated), `fixtures/version0.blob`
+//!   and generated version-3 blobs. `fixtures/example-v2.blob` (the example)
+//!   must keep loading and running to the documented value.
 //!
 //! `PHASEGATE_BLESS=1 cargo test -p phasegate-tests --test blob_format`
-//! rewrites the fixtures in `tests/fixtures/` (only ever needed when the
-//! example changes, which is a format change: see the document).
+//! rewrites `tests/fixtures/example-v2.blob` (only ever needed when the
+//! example changes, which is a format change: see the document). The
+//! version-1 and version-0 fixtures are records and are never rewritten.
 
 use std::path::PathBuf;
 
-use exporter::encode::{encode, frame, QKind, QLayer, QModel};
+use exporter::encode::{encode, frame, QKind, QLayer, QModel, QNode, QNodeOp, Wiring};
 use phasegate::blob::{
-    crc32, AccWidth, Activation, Gating, Header, LayerDesc, LayerOp, ModelKind, Requant, Section,
-    WeightFormat, FORMAT_VERSION, MAGIC, MAX_LAYERS, PAYLOAD_ALIGN, PREAMBLE_LEN,
+    crc32, AccWidth, Activation, GateSource, Gating, Header, LayerDesc, LayerOp, ModelKind, Node,
+    NodeOp, Requant, Section, Slice, SoftmaxDesc, Source, Span, WeightFormat, FORMAT_VERSION,
+    MAGIC, MAX_NODES, MAX_NODE_INPUTS, PAYLOAD_ALIGN, PREAMBLE_LEN,
 };
-use phasegate::{blob_len_from_prefix, Error, Model, Phase, Runtime};
+use phasegate::{blob_len_from_prefix, Error, Model, Phase, Runtime, MAX_GATES};
 use proptest::prelude::*;
 
 /// The example blob of `docs/blob-format.md`, section "Byte-level example".
 /// Offsets on the left; the document annotates every byte.
 const EXAMPLE_HEX: &str = "
+    0000: 50 47 4d 42 02 00 30 00 cc 47 92 d2 01 00 02 01
+    0010: 01 00 00 02 01 01 00 00 00 18 02 1c 04 20 08 01
+    0020: 00 00 02 00 00 02 00 00 02 01 00 02 01 00 00 01
+    0030: 00 10 10 08 06 02 28 d7 aa f7 e9 03 00 00 00 00
+    0040: 00 00 00 00 00 00 80 43 00 00 80 3f 00 00 00 43
+    0050: 00 00 00 3c 00 00 20 c0 64 ce 00 00 e8 03 00 00
+    0060: 00 00 00 50 03 2f 00 00
+";
+
+/// The byte-level example of format version 1 (the same model), as the
+/// version-1 document showed it: the record kept in
+/// `tests/fixtures/example-v1.blob`. Never changes.
+const EXAMPLE_V1_HEX: &str = "
     0000: 50 47 4d 42 01 00 1f 00 1b 10 08 37 01 00 02 01
     0010: 01 00 02 01 01 00 00 00 00 18 02 1c 04 20 08 00
     0020: 10 10 08 08 02 28 d7 aa f7 e9 03 00 00 00 00 00
@@ -53,8 +72,32 @@ fn hex(text: &str) -> Vec<u8> {
     out
 }
 
+fn dump(blob: &[u8]) -> String {
+    blob.chunks(16)
+        .enumerate()
+        .map(|(i, c)| {
+            format!(
+                "{:04x}: {}\n",
+                i * 16,
+                c.iter()
+                    .map(|b| format!("{b:02x}"))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            )
+        })
+        .collect()
+}
+
 fn empty() -> Section {
     Section::default()
+}
+
+fn span(offset: u16, len: u16) -> Span {
+    Span { offset, len }
+}
+
+fn slice(source: Source, start: u16, len: u16) -> Slice {
+    Slice { source, start, len }
 }
 
 /// The document's example model: no phase, two inputs, one int8 dense
@@ -74,7 +117,6 @@ fn example_model() -> QModel {
                 weights: WeightFormat::I8,
                 acc: AccWidth::I32,
                 activation: Activation::Identity,
-                gated: false,
                 weight_section: empty(),
                 bias_section: empty(),
                 requant_section: empty(),
@@ -88,7 +130,9 @@ fn example_model() -> QModel {
                 frac: 0,
             }],
             cp: None,
+            gated: false,
         }],
+        wiring: Wiring::Chain,
     }
 }
 
@@ -100,27 +144,14 @@ fn example_blob() -> Vec<u8> {
 fn example_bytes_are_pinned() {
     let blob = example_blob();
     let expected = hex(EXAMPLE_HEX);
-    assert_eq!(blob.len(), 88);
     if blob != expected {
-        let got: Vec<String> = blob
-            .chunks(16)
-            .enumerate()
-            .map(|(i, c)| {
-                format!(
-                    "{:04x}: {}",
-                    i * 16,
-                    c.iter()
-                        .map(|b| format!("{b:02x}"))
-                        .collect::<Vec<_>>()
-                        .join(" ")
-                )
-            })
-            .collect();
         panic!(
-            "example blob changed; the encoder now writes:\n{}",
-            got.join("\n")
+            "example blob changed; the encoder now writes ({} bytes):\n{}",
+            blob.len(),
+            dump(&blob)
         );
     }
+    assert_eq!(blob.len(), 104);
 }
 
 #[test]
@@ -131,9 +162,12 @@ fn example_header_is_what_the_document_says() {
     assert_eq!(h.kind, ModelKind::Mlp);
     assert_eq!(h.gating, Gating::Single);
     assert_eq!((h.input_dim, h.output_dim), (2, 1));
-    assert_eq!(h.layers.len(), 1);
-    let l = h.layers[0];
-    assert_eq!((l.in_dim, l.out_dim, l.experts, l.gated), (2, 1, 1, false));
+    assert_eq!(h.nodes.len(), 1);
+    let n = &h.nodes[0];
+    let NodeOp::Layer(l) = n.op else {
+        panic!("node 0 is a layer")
+    };
+    assert_eq!((l.op, l.in_dim, l.out_dim, l.experts), (LayerOp::Dense, 2, 1, 1));
     assert_eq!(
         (l.weights, l.acc, l.activation),
         (WeightFormat::I8, AccWidth::I32, Activation::Identity)
@@ -141,34 +175,56 @@ fn example_header_is_what_the_document_says() {
     assert_eq!(l.weight_section, Section { offset: 24, len: 2 });
     assert_eq!(l.bias_section, Section { offset: 28, len: 4 });
     assert_eq!(l.requant_section, Section { offset: 32, len: 8 });
+    assert_eq!(n.inputs.as_slice(), &[slice(Source::Input, 0, 2)]);
+    assert_eq!(n.gate, GateSource::None);
+    // One input slice: read in place, so the node's input span is the
+    // model input's; no scratch; the output after the input.
+    assert_eq!((n.input, n.scratch, n.output), (span(0, 2), span(0, 0), span(2, 1)));
+    assert_eq!(h.input, span(0, 2));
+    assert_eq!(h.output, slice(Source::Node(0), 0, 1));
     assert_eq!(h.input_stage, Section { offset: 0, len: 16 });
     assert_eq!(h.output_stage, Section { offset: 16, len: 8 });
-    assert_eq!((h.ram_bytes, h.macs_per_frame), (8, 2));
+    assert_eq!((h.ram_bytes, h.macs_per_frame), (6, 2));
     assert_eq!((h.payload_len, h.payload_crc), (40, 0x3D3D_D557));
-    assert_eq!(model.blob_len(), 88);
-    // Preamble: header length 31, header CRC over bytes 0..8 and the header.
-    assert_eq!(&blob[6..8], &31u16.to_le_bytes());
-    assert_eq!(
-        crc32(
-            &blob[..8]
-                .iter()
-                .chain(&blob[12..43])
-                .copied()
-                .collect::<Vec<_>>()
-        ),
-        0x3708_101B
+    assert_eq!(model.blob_len(), 104);
+    assert_eq!(model.arena_elements(), 3);
+    // Preamble: version 2, header length 48, header CRC over bytes 0..8 and the header.
+    assert_eq!(&blob[4..6], &2u16.to_le_bytes());
+    assert_eq!(&blob[6..8], &48u16.to_le_bytes());
+    let crc = crc32(
+        &blob[..8]
+            .iter()
+            .chain(&blob[12..60])
+            .copied()
+            .collect::<Vec<_>>(),
     );
-    assert_eq!(&blob[8..12], &0x3708_101Bu32.to_le_bytes());
-    assert_eq!(crc32(&blob[48..]), 0x3D3D_D557);
-    assert_eq!(blob_len_from_prefix(&blob[..48]), Ok(88));
+    assert_eq!(&blob[8..12], &crc.to_le_bytes());
+    assert_eq!(crc, EXAMPLE_HEADER_CRC);
+    assert!(blob[60..64].iter().all(|&b| b == 0));
+    assert_eq!(crc32(&blob[64..]), 0x3D3D_D557);
+    // The payload is the version-1 example's, unchanged.
+    assert_eq!(&blob[64..], &hex(EXAMPLE_V1_HEX)[48..]);
+    assert_eq!(blob_len_from_prefix(&blob[..60]), Ok(104));
 }
+
+/// The header CRC of the example (document: "Every byte", offset 8).
+const EXAMPLE_HEADER_CRC: u32 = 0xD292_47CC;
 
 /// The hand computation of the document's "Running the example" section.
 #[test]
 fn example_runs_to_the_hand_computed_value() {
     let blob = hex(EXAMPLE_HEX);
+    // The arena is 3 elements (ram_bytes 6): input at 0..2, output at 2..3.
+    assert_eq!(
+        Runtime::<'_, 2>::new(Model::from_bytes(&blob).unwrap()).err(),
+        Some(Error::BufferTooSmall {
+            needed: 3,
+            capacity: 2
+        })
+    );
     let model = Model::from_bytes(&blob).unwrap();
-    let mut rt: Runtime<'_, 2> = Runtime::new(model).unwrap();
+    assert_eq!(Runtime::<0>::required_elements(&model), 3);
+    let mut rt: Runtime<'_, 3> = Runtime::new(model).unwrap();
     let x = [1.5f32, -0.25];
 
     // Input stage: q0 = (1.5 - 0) * 256 = 384, q1 = (-0.25 - 1) * 128 = -160.
@@ -199,6 +255,7 @@ fn example_runs_to_the_hand_computed_value() {
     let mut y = [0f32; 1];
     rt.run(Phase::from_bits(0), &x, &mut y).unwrap();
     assert_eq!(y, [3703.0 / 128.0 - 2.5]); // 26.4296875
+    assert_eq!(y, [26.429_687_5]);
 }
 
 #[test]
@@ -240,6 +297,7 @@ fn postcard_encodings_match_the_document() {
     assert_eq!(enc(&Gating::Linear { tables: 10 }), [0x02, 0x0a]);
     assert_eq!(enc(&Gating::CatmullRom { points: 4 }), [0x03, 0x04]);
     assert_eq!(enc(&Gating::Linear { tables: 300 }), [0x02, 0xac, 0x02]);
+    assert_eq!(enc(&Gating::Softmax { experts: 8 }), [0x04, 0x08]);
     assert_eq!(enc(&WeightFormat::I8), [0x00]);
     assert_eq!(enc(&WeightFormat::I16), [0x01]);
     assert_eq!(enc(&AccWidth::I32), [0x00]);
@@ -265,6 +323,11 @@ fn postcard_encodings_match_the_document() {
         name: Section { offset: 0, len: 5 },
     };
     assert_eq!(enc(&style), [0x02, 0x01, 0xc8, 0x00, 0x05]);
+    assert_eq!(enc(&Source::Input), [0x00]);
+    assert_eq!(enc(&Source::Node(200)), [0x01, 0xc8]);
+    assert_eq!(enc(&GateSource::None), [0x00]);
+    assert_eq!(enc(&GateSource::Phase), [0x01]);
+    assert_eq!(enc(&GateSource::Node(2)), [0x02, 0x02]);
     // Structs: fields in order, nothing else.
     assert_eq!(
         enc(&Section {
@@ -273,37 +336,109 @@ fn postcard_encodings_match_the_document() {
         }),
         [0x80, 0x08, 0xc8, 0xa0, 0x02]
     );
+    assert_eq!(enc(&span(342, 32)), [0xd6, 0x02, 0x20]);
+    assert_eq!(
+        enc(&slice(Source::Node(1), 128, 3)),
+        [0x01, 0x01, 0x80, 0x01, 0x03]
+    );
+    assert_eq!(
+        enc(&SoftmaxDesc {
+            experts: 8,
+            frac: 200
+        }),
+        [0x08, 0xc8]
+    );
+    assert_eq!(
+        enc(&NodeOp::Softmax(SoftmaxDesc {
+            experts: 4,
+            frac: 7
+        })),
+        [0x01, 0x04, 0x07]
+    );
     // heapless::Vec: varint length, then the elements.
     let mut v = heapless::Vec::<Section, 4>::new();
     v.push(Section { offset: 4, len: 8 }).unwrap();
     v.push(Section { offset: 12, len: 0 }).unwrap();
     assert_eq!(enc(&v), [0x02, 0x04, 0x08, 0x0c, 0x00]);
+    // A whole softmax node: op, inputs, gate, input, scratch, output.
+    let node = Node {
+        op: NodeOp::Softmax(SoftmaxDesc {
+            experts: 4,
+            frac: 7,
+        }),
+        inputs: [slice(Source::Node(0), 0, 2), slice(Source::Node(1), 0, 2)]
+            .into_iter()
+            .collect(),
+        gate: GateSource::None,
+        input: span(10, 4),
+        scratch: span(0, 0),
+        output: span(0, 0),
+    };
+    assert_eq!(
+        enc(&node),
+        [
+            0x01, 0x04, 0x07, // op: Softmax { experts 4, frac 7 }
+            0x02, // two input slices
+            0x01, 0x00, 0x00, 0x02, // Node(0)[0..2]
+            0x01, 0x01, 0x00, 0x02, // Node(1)[0..2]
+            0x00, // gate: None
+            0x0a, 0x04, 0x00, 0x00, 0x00, 0x00 // input 10+4, scratch, output
+        ]
+    );
 }
 
 /// What the document says about varints a writer should not produce.
 #[test]
 fn padded_varints_load_and_overlong_ones_do_not() {
     let blob = example_blob();
-    let payload = &blob[48..];
+    let payload = &blob[64..];
     let header = postcard::to_allocvec(Model::from_bytes(&blob).unwrap().header()).unwrap();
     // Byte 2 of the header is input_dim = 2, encoded 0x02. Padded: 0x82 0x00.
     assert_eq!(header[2], 0x02);
     let mut padded = header.clone();
     padded.splice(2..3, [0x82, 0x00]);
-    let padded_blob = frame_raw(1, &padded, payload);
+    let padded_blob = frame_raw(2, &padded, payload);
     let m = Model::from_bytes(&padded_blob).unwrap();
     assert_eq!(m.header().input_dim, 2);
     // A u16 varint may not take more than 3 bytes, and its third byte may not exceed 0x03.
     let mut overlong = header.clone();
     overlong.splice(2..3, [0x82, 0x80, 0x80, 0x00]);
     assert_eq!(
-        Model::from_bytes(&frame_raw(1, &overlong, payload)).unwrap_err(),
+        Model::from_bytes(&frame_raw(2, &overlong, payload)).unwrap_err(),
         Error::HeaderMalformed
     );
     let mut too_big = header.clone();
     too_big.splice(2..3, [0x82, 0x80, 0x04]);
     assert_eq!(
-        Model::from_bytes(&frame_raw(1, &too_big, payload)).unwrap_err(),
+        Model::from_bytes(&frame_raw(2, &too_big, payload)).unwrap_err(),
+        Error::HeaderMalformed
+    );
+    // More than 24 nodes: the node count 25 is refused while decoding.
+    let mut many = header.clone();
+    assert_eq!(many[4], 0x01);
+    many[4] = 25;
+    assert_eq!(
+        Model::from_bytes(&frame_raw(2, &many, payload)).unwrap_err(),
+        Error::HeaderMalformed
+    );
+    // An unknown enum index (Softmax is never a header's gating, but it
+    // decodes; index 5 does not).
+    let mut gating = header.clone();
+    gating[1] = 0x05;
+    assert_eq!(
+        Model::from_bytes(&frame_raw(2, &gating, payload)).unwrap_err(),
+        Error::HeaderMalformed
+    );
+    gating[1] = 0x04; // Softmax { experts: 2 } (the next byte is input_dim)
+    assert_eq!(
+        Model::from_bytes(&frame_raw(2, &gating, payload)).unwrap_err(),
+        Error::HeaderMalformed
+    );
+    // A trailing byte after the header.
+    let mut trailing = header.clone();
+    trailing.push(0);
+    assert_eq!(
+        Model::from_bytes(&frame_raw(2, &trailing, payload)).unwrap_err(),
         Error::HeaderMalformed
     );
 }
@@ -324,6 +459,145 @@ fn frame_raw(version: u16, header: &[u8], payload: &[u8]) -> Vec<u8> {
     out
 }
 
+/// Re-frames a decoded header (possibly edited) with the example's payload.
+fn reframe(h: &Header, payload: &[u8]) -> Vec<u8> {
+    frame_raw(2, &postcard::to_allocvec(h).unwrap(), payload)
+}
+
+/// The example's header with one field edited gives the error the document's
+/// loader table says.
+#[test]
+fn the_loader_checks_of_the_document() {
+    let blob = example_blob();
+    let payload = blob[64..].to_vec();
+    let base = Model::from_bytes(&blob).unwrap().header().clone();
+    let check = |edit: &dyn Fn(&mut Header), want: Error| {
+        let mut h = base.clone();
+        edit(&mut h);
+        assert_eq!(Model::from_bytes(&reframe(&h, &payload)).unwrap_err(), want, "{h:?}");
+    };
+    let layer = |h: &mut Header| -> LayerDesc {
+        match h.nodes[0].op {
+            NodeOp::Layer(d) => d,
+            NodeOp::Softmax(_) => unreachable!(),
+        }
+    };
+    check(
+        &|h| {
+            h.kind = ModelKind::Style {
+                base_crc: 0,
+                layer: 0,
+                name: empty(),
+            }
+        },
+        Error::NotAModel,
+    );
+    check(
+        &|h| h.gating = Gating::Softmax { experts: 1 },
+        Error::UnsupportedParameter { layer: 255 },
+    );
+    check(
+        &|h| h.gating = Gating::CatmullRom { points: 3 },
+        Error::UnsupportedParameter { layer: 255 },
+    );
+    check(
+        &|h| h.nodes.clear(),
+        Error::UnsupportedParameter { layer: 255 },
+    );
+    check(&|h| h.input.len = 3, Error::DimensionMismatch { layer: 255 });
+    // Slices: earlier sources only, non-empty, inside the source.
+    check(
+        &|h| h.nodes[0].inputs[0].source = Source::Node(0),
+        Error::GraphInvalid { node: 0 },
+    );
+    check(
+        &|h| h.nodes[0].inputs[0].start = 1,
+        Error::GraphInvalid { node: 0 },
+    );
+    check(
+        &|h| h.nodes[0].inputs.clear(),
+        Error::GraphInvalid { node: 0 },
+    );
+    // Widths.
+    check(
+        &|h| {
+            h.nodes[0].inputs[0].len = 1;
+            h.nodes[0].input.len = 1;
+        },
+        Error::DimensionMismatch { layer: 0 },
+    );
+    check(
+        &|h| h.nodes[0].output.len = 2,
+        Error::DimensionMismatch { layer: 0 },
+    );
+    // A single slice is read in place: the node's input span is where it lies.
+    check(
+        &|h| h.nodes[0].input.offset = 1,
+        Error::ArenaOverlap { node: 0 },
+    );
+    // Gate sources.
+    check(
+        &|h| h.nodes[0].gate = GateSource::Node(0),
+        Error::GraphInvalid { node: 0 },
+    );
+    // (A phase gate with `Gating::Single` is one expert: valid.)
+    let mut h = base.clone();
+    h.nodes[0].gate = GateSource::Phase;
+    assert!(Model::from_bytes(&reframe(&h, &payload)).is_ok());
+    // The output slice.
+    check(
+        &|h| h.output.source = Source::Node(1),
+        Error::GraphInvalid { node: 255 },
+    );
+    check(&|h| h.output.len = 0, Error::DimensionMismatch { layer: 255 });
+    // Per layer: experts, sections.
+    check(
+        &|h| {
+            let mut d = layer(h);
+            d.experts = 2;
+            h.nodes[0].op = NodeOp::Layer(d);
+        },
+        Error::GatingMismatch { layer: 0 },
+    );
+    check(
+        &|h| {
+            let mut d = layer(h);
+            d.bias_section.offset = 26;
+            h.nodes[0].op = NodeOp::Layer(d);
+        },
+        Error::SectionOutOfBounds { layer: 0 },
+    );
+    check(
+        &|h| {
+            let mut d = layer(h);
+            d.weight_section.len = 3;
+            h.nodes[0].op = NodeOp::Layer(d);
+        },
+        Error::SectionLength { layer: 0 },
+    );
+    // Stages.
+    check(
+        &|h| h.output_stage.offset = 36,
+        Error::SectionOutOfBounds { layer: 255 },
+    );
+    check(
+        &|h| h.input_stage.len = 8,
+        Error::SectionLength { layer: 255 },
+    );
+    // The plan.
+    check(
+        &|h| h.nodes[0].output.offset = 1,
+        Error::ArenaOverlap { node: 0 },
+    );
+    check(&|h| h.ram_bytes = 8, Error::HeaderInconsistent);
+    check(&|h| h.macs_per_frame = 3, Error::HeaderInconsistent);
+    // A plan that reuses nothing is fine as long as ram_bytes is exact.
+    let mut h = base.clone();
+    h.nodes[0].output.offset = 5;
+    h.ram_bytes = 12;
+    assert!(Model::from_bytes(&reframe(&h, &payload)).is_ok());
+}
+
 /// The hex block of `docs/blob-format.md` is `EXAMPLE_HEX`.
 #[test]
 fn the_document_shows_the_pinned_bytes() {
@@ -340,16 +614,20 @@ fn the_document_shows_the_pinned_bytes() {
         .map(|l| format!("{l}\n"))
         .collect();
     assert_eq!(hex(&dump), hex(EXAMPLE_HEX));
+    assert!(doc.contains("# The phasegate blob format, version 2"));
 }
 
 /// The largest header any `Header` value encodes to: every varint at its
-/// longest, the longest enum variants, eight CP layers.
+/// longest, the longest enum variants, 24 CP layer nodes of four input
+/// slices each, gated by a node.
 #[test]
 fn largest_header_size() {
     let s = Section {
         offset: u32::MAX,
         len: u32::MAX,
     };
+    let sp = span(u16::MAX, u16::MAX);
+    let sl = slice(Source::Node(u8::MAX), u16::MAX, u16::MAX);
     let layer = LayerDesc {
         op: LayerOp::Cp {
             rank: u16::MAX,
@@ -363,11 +641,19 @@ fn largest_header_size() {
         weights: WeightFormat::I16,
         acc: AccWidth::I64,
         activation: Activation::Elu,
-        gated: true,
         weight_section: s,
         bias_section: s,
         requant_section: s,
     };
+    let node = Node {
+        op: NodeOp::Layer(layer),
+        inputs: std::iter::repeat_n(sl, MAX_NODE_INPUTS).collect(),
+        gate: GateSource::Node(u8::MAX),
+        input: sp,
+        scratch: sp,
+        output: sp,
+    };
+    assert_eq!(postcard::to_allocvec(&node).unwrap().len(), 130);
     let h = Header {
         kind: ModelKind::Style {
             base_crc: u32::MAX,
@@ -377,7 +663,9 @@ fn largest_header_size() {
         gating: Gating::CatmullRom { points: u16::MAX },
         input_dim: u16::MAX,
         output_dim: u16::MAX,
-        layers: std::iter::repeat_n(layer, MAX_LAYERS).collect(),
+        nodes: std::iter::repeat_n(node, MAX_NODES).collect(),
+        input: sp,
+        output: sl,
         input_stage: s,
         output_stage: s,
         ram_bytes: u32::MAX,
@@ -385,17 +673,20 @@ fn largest_header_size() {
         payload_len: u32::MAX,
         payload_crc: u32::MAX,
     };
-    assert_eq!(postcard::to_allocvec(&h).unwrap().len(), 684);
+    assert_eq!(postcard::to_allocvec(&h).unwrap().len(), 3202);
 }
 
 #[test]
 fn constants_are_the_documented_ones() {
     assert_eq!(MAGIC, *b"PGMB");
-    assert_eq!(FORMAT_VERSION, 1);
-    assert_eq!((PREAMBLE_LEN, PAYLOAD_ALIGN, MAX_LAYERS), (12, 16, 8));
+    assert_eq!(FORMAT_VERSION, 2);
+    assert_eq!((PREAMBLE_LEN, PAYLOAD_ALIGN), (12, 16));
+    assert_eq!((MAX_NODES, MAX_NODE_INPUTS, MAX_GATES), (24, 4, 2));
+    assert_eq!(phasegate::STAGE, 255);
+    assert_eq!(phasegate::graph::IO, 255);
     let blob = example_blob();
     let header = postcard::to_allocvec(Model::from_bytes(&blob).unwrap().header()).unwrap();
-    assert_eq!(frame_raw(1, &header, &blob[48..]), blob);
+    assert_eq!(frame_raw(2, &header, &blob[64..]), blob);
 }
 
 // ---------------------------------------------------------------------------
@@ -407,7 +698,7 @@ fn fixture(name: &str) -> PathBuf {
         .join(name)
 }
 
-/// The example with another version number, header CRC recomputed.
+/// `blob` with another version number, header CRC recomputed.
 fn with_version(blob: &[u8], version: u16) -> Vec<u8> {
     let mut b = blob.to_vec();
     b[4..6].copy_from_slice(&version.to_le_bytes());
@@ -423,37 +714,80 @@ fn with_version(blob: &[u8], version: u16) -> Vec<u8> {
     b
 }
 
-/// The checked-in fixtures are what this file generates; `PHASEGATE_BLESS=1`
-/// rewrites them.
+/// The checked-in fixtures are what they should be. `PHASEGATE_BLESS=1`
+/// rewrites `example-v2.blob` only: `example-v1.blob` and `version0.blob`
+/// are records of versions this runtime refuses and never change.
 #[test]
 fn fixtures_are_current() {
+    let v1 = hex(EXAMPLE_V1_HEX);
     let wanted = [
-        ("example-v1.blob", example_blob()),
-        ("version0.blob", with_version(&example_blob(), 0)),
+        ("example-v2.blob", example_blob(), true),
+        ("example-v1.blob", v1.clone(), false),
+        ("version0.blob", with_version(&v1, 0), false),
     ];
-    for (name, bytes) in wanted {
+    for (name, bytes, blessable) in wanted {
         let path = fixture(name);
-        if std::env::var_os("PHASEGATE_BLESS").is_some() {
+        if blessable && std::env::var_os("PHASEGATE_BLESS").is_some() {
             std::fs::write(&path, &bytes).unwrap();
         }
         let on_disk = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         assert_eq!(
             on_disk, bytes,
-            "{name} is stale: rerun with PHASEGATE_BLESS=1"
+            "{name} differs from what it should be (only example-v2.blob may be rewritten, with PHASEGATE_BLESS=1)"
         );
     }
 }
 
-/// A blob written by format version 1 must keep loading (or, once version 1
-/// is retired, be refused with `UnsupportedVersion`, never misread).
+/// The version-2 example must keep loading and running to the documented value.
 #[test]
-fn version1_fixture_loads_and_runs() {
-    let blob = std::fs::read(fixture("example-v1.blob")).unwrap();
+fn version2_fixture_loads_and_runs() {
+    let blob = std::fs::read(fixture("example-v2.blob")).unwrap();
+    assert_eq!(blob, hex(EXAMPLE_HEX));
     let model = Model::from_bytes(&blob).unwrap();
-    let mut rt: Runtime<'_, 2> = Runtime::new(model).unwrap();
+    let mut rt: Runtime<'_, 3> = Runtime::new(model).unwrap();
     let mut y = [0f32];
     rt.run(Phase::from_bits(0), &[1.5, -0.25], &mut y).unwrap();
     assert_eq!(y, [3703.0 / 128.0 - 2.5]); // 26.4296875
+}
+
+/// Version 1 is retired: its record is refused with the version error,
+/// and nothing after the preamble's version field is looked at.
+#[test]
+fn version1_fixture_is_refused_before_anything_else_is_read() {
+    let blob = std::fs::read(fixture("example-v1.blob")).unwrap();
+    assert_eq!(blob.len(), 88);
+    assert_eq!(&blob[4..6], &[1, 0]);
+    let want = Error::UnsupportedVersion {
+        found: 1,
+        supported: 2,
+    };
+    assert_eq!(Model::from_bytes(&blob).unwrap_err(), want);
+    assert_eq!(Model::from_region(&blob).unwrap_err(), want);
+    assert_eq!(blob_len_from_prefix(&blob).unwrap_err(), want);
+    assert_eq!(phasegate::Style::from_bytes(&blob).unwrap_err(), want);
+    assert_eq!(
+        want.to_string(),
+        "blob format version 1 is not supported (this runtime reads version 2)"
+    );
+    // Its preamble alone gives the same error: header, CRCs, padding and
+    // payload are never read (a truncated or damaged rest changes nothing).
+    assert_eq!(Model::from_bytes(&blob[..12]).unwrap_err(), want);
+    let mut damaged = blob.clone();
+    for b in &mut damaged[8..] {
+        *b ^= 0xFF;
+    }
+    assert_eq!(Model::from_bytes(&damaged).unwrap_err(), want);
+    let mut longer = blob.clone();
+    longer.extend([0u8; 40]);
+    assert_eq!(Model::from_bytes(&longer).unwrap_err(), want);
+    // A version-1 header is not a version-2 header: even relabelled as
+    // version 2 (CRC recomputed) it does not decode.
+    assert_eq!(
+        Model::from_bytes(&with_version(&blob, 2)).unwrap_err(),
+        Error::HeaderMalformed
+    );
+    // The spec decoder reads its preamble the same way.
+    assert_eq!(spec::parse(&blob).err(), Some(spec::Refused::Version(1)));
 }
 
 #[test]
@@ -463,33 +797,32 @@ fn version0_fixture_is_refused_with_a_version_error() {
     assert_eq!(&blob[4..6], &[0, 0]);
     let want = Error::UnsupportedVersion {
         found: 0,
-        supported: 1,
+        supported: 2,
     };
     assert_eq!(Model::from_bytes(&blob).unwrap_err(), want);
     assert_eq!(Model::from_region(&blob).unwrap_err(), want);
     assert_eq!(blob_len_from_prefix(&blob).unwrap_err(), want);
     assert_eq!(
         want.to_string(),
-        "blob format version 0 is not supported (this runtime reads version 1)"
+        "blob format version 0 is not supported (this runtime reads version 2)"
     );
 }
 
 #[test]
 fn future_versions_are_refused_before_anything_else_is_read() {
-    let v2 = with_version(&example_blob(), 2);
-    assert_eq!(
-        Model::from_bytes(&v2).unwrap_err(),
-        Error::UnsupportedVersion {
-            found: 2,
-            supported: 1
-        }
-    );
-    // The version is checked right after the magic: a version-2 blob whose
+    let v3 = with_version(&example_blob(), 3);
+    let want = Error::UnsupportedVersion {
+        found: 3,
+        supported: 2,
+    };
+    assert_eq!(Model::from_bytes(&v3).unwrap_err(), want);
+    assert_eq!(blob_len_from_prefix(&v3).unwrap_err(), want);
+    // The version is checked right after the magic: a version-3 blob whose
     // header, CRCs and length mean nothing to this runtime still gets the
     // version error, not a CRC or length one.
     // The whole 12-byte preamble must be there first.
     let mut garbage = b"PGMB".to_vec();
-    garbage.extend(2u16.to_le_bytes());
+    garbage.extend(3u16.to_le_bytes());
     assert_eq!(
         Model::from_bytes(&garbage).unwrap_err(),
         Error::Truncated {
@@ -498,33 +831,29 @@ fn future_versions_are_refused_before_anything_else_is_read() {
         }
     );
     garbage.extend([0xFF; 6]);
-    assert_eq!(
-        Model::from_bytes(&garbage).unwrap_err(),
-        Error::UnsupportedVersion {
-            found: 2,
-            supported: 1
-        }
-    );
+    assert_eq!(Model::from_bytes(&garbage).unwrap_err(), want);
     garbage.extend([0xFF; 100]);
-    assert_eq!(
-        Model::from_bytes(&garbage).unwrap_err(),
-        Error::UnsupportedVersion {
-            found: 2,
-            supported: 1
-        }
-    );
+    assert_eq!(Model::from_bytes(&garbage).unwrap_err(), want);
     let vmax = with_version(&example_blob(), u16::MAX);
     assert_eq!(
         Model::from_bytes(&vmax).unwrap_err(),
         Error::UnsupportedVersion {
             found: u16::MAX,
-            supported: 1
+            supported: 2
         }
     );
     // The magic comes first.
-    let mut bad = v2.clone();
+    let mut bad = v3.clone();
     bad[0] = b'X';
     assert_eq!(Model::from_bytes(&bad).unwrap_err(), Error::BadMagic);
+    // Fewer than 4 bytes: truncated, before the magic is compared.
+    assert_eq!(
+        Model::from_bytes(b"PG").unwrap_err(),
+        Error::Truncated {
+            needed: 12,
+            available: 2
+        }
+    );
 }
 
 // ---------------------------------------------------------------------------
@@ -532,6 +861,24 @@ fn future_versions_are_refused_before_anything_else_is_read() {
 
 mod spec {
     use super::*;
+
+    /// Why `parse` refused a blob.
+    #[derive(Debug, PartialEq, Eq)]
+    pub enum Refused {
+        /// Shorter than the part being read.
+        Short,
+        /// Not `PGMB`.
+        Magic,
+        /// Another format version: nothing after the preamble is read.
+        Version(u16),
+        /// Header CRC.
+        HeaderCrc,
+        /// The header bytes do not decode, or leave bytes over, or the
+        /// padding is not zero.
+        Malformed,
+        /// Payload CRC.
+        PayloadCrc,
+    }
 
     pub struct Reader<'a> {
         bytes: &'a [u8],
@@ -547,6 +894,7 @@ mod spec {
             self.pos == self.bytes.len()
         }
 
+        /// A `u8`: one raw byte.
         fn byte(&mut self) -> Option<u8> {
             let b = *self.bytes.get(self.pos)?;
             self.pos += 1;
@@ -585,18 +933,39 @@ mod spec {
             self.u32()
         }
 
-        fn bool(&mut self) -> Option<bool> {
-            match self.byte()? {
-                0 => Some(false),
-                1 => Some(true),
-                _ => None,
-            }
+        /// A vector length: a usize varint, at most `max`.
+        fn count(&mut self, max: usize) -> Option<usize> {
+            let n = self.varint(64)?;
+            (n <= max as u64).then_some(n as usize)
         }
 
         fn section(&mut self) -> Option<Section> {
             Some(Section {
                 offset: self.u32()?,
                 len: self.u32()?,
+            })
+        }
+
+        fn span(&mut self) -> Option<Span> {
+            Some(Span {
+                offset: self.u16()?,
+                len: self.u16()?,
+            })
+        }
+
+        fn source(&mut self) -> Option<Source> {
+            match self.tag()? {
+                0 => Some(Source::Input),
+                1 => Some(Source::Node(self.byte()?)),
+                _ => None,
+            }
+        }
+
+        fn slice(&mut self) -> Option<Slice> {
+            Some(Slice {
+                source: self.source()?,
+                start: self.u16()?,
+                len: self.u16()?,
             })
         }
 
@@ -631,10 +1000,39 @@ mod spec {
                     1 => Activation::Elu,
                     _ => return None,
                 },
-                gated: self.bool()?,
                 weight_section: self.section()?,
                 bias_section: self.section()?,
                 requant_section: self.section()?,
+            })
+        }
+
+        fn node(&mut self) -> Option<Node> {
+            let op = match self.tag()? {
+                0 => NodeOp::Layer(self.layer()?),
+                1 => NodeOp::Softmax(SoftmaxDesc {
+                    experts: self.u16()?,
+                    frac: self.byte()?, // u8: one raw byte
+                }),
+                _ => return None,
+            };
+            let n = self.count(4)?;
+            let mut inputs = heapless::Vec::new();
+            for _ in 0..n {
+                inputs.push(self.slice()?).ok()?;
+            }
+            let gate = match self.tag()? {
+                0 => GateSource::None,
+                1 => GateSource::Phase,
+                2 => GateSource::Node(self.byte()?),
+                _ => return None,
+            };
+            Some(Node {
+                op,
+                inputs,
+                gate,
+                input: self.span()?,
+                scratch: self.span()?,
+                output: self.span()?,
             })
         }
 
@@ -660,21 +1058,26 @@ mod spec {
                 3 => Gating::CatmullRom {
                     points: self.u16()?,
                 },
+                4 => Gating::Softmax {
+                    experts: self.u16()?,
+                },
                 _ => return None,
             };
             let input_dim = self.u16()?;
             let output_dim = self.u16()?;
-            let count = self.varint(64)?;
-            let mut layers = heapless::Vec::new();
+            let count = self.count(24)?;
+            let mut nodes = heapless::Vec::new();
             for _ in 0..count {
-                layers.push(self.layer()?).ok()?;
+                nodes.push(self.node()?).ok()?;
             }
             Some(Header {
                 kind,
                 gating,
                 input_dim,
                 output_dim,
-                layers,
+                nodes,
+                input: self.span()?,
+                output: self.slice()?,
                 input_stage: self.section()?,
                 output_stage: self.section()?,
                 ram_bytes: self.u32()?,
@@ -685,45 +1088,54 @@ mod spec {
         }
     }
 
-    /// Preamble, header and payload of a blob, by the document's rules.
-    pub fn parse(blob: &[u8]) -> Option<(u16, Header, &[u8])> {
-        if blob.get(..4)? != b"PGMB" {
-            return None;
+    /// Preamble, header and payload of a version-2 blob, by the document's
+    /// rules (framing checks 1 to 12, in order, except that this returns
+    /// the payload of a longer slice).
+    pub fn parse(blob: &[u8]) -> Result<(Header, &[u8]), Refused> {
+        if blob.get(..4).ok_or(Refused::Short)? != b"PGMB" {
+            return Err(Refused::Magic);
         }
-        let version = u16::from_le_bytes([*blob.get(4)?, *blob.get(5)?]);
-        let header_len = usize::from(u16::from_le_bytes([*blob.get(6)?, *blob.get(7)?]));
-        let crc = u32::from_le_bytes(blob.get(8..12)?.try_into().ok()?);
-        let header_bytes = blob.get(12..12 + header_len)?;
+        let pre = blob.get(..12).ok_or(Refused::Short)?;
+        let version = u16::from_le_bytes([pre[4], pre[5]]);
+        if version != 2 {
+            return Err(Refused::Version(version));
+        }
+        let header_len = usize::from(u16::from_le_bytes([pre[6], pre[7]]));
+        let crc = u32::from_le_bytes([pre[8], pre[9], pre[10], pre[11]]);
+        let header_bytes = blob.get(12..12 + header_len).ok_or(Refused::Short)?;
         let mut crc_input = blob[..8].to_vec();
         crc_input.extend(header_bytes);
         if crc32(&crc_input) != crc {
-            return None;
+            return Err(Refused::HeaderCrc);
         }
         let mut r = Reader::new(header_bytes);
-        let header = r.header()?;
+        let header = r.header().ok_or(Refused::Malformed)?;
         if !r.at_end() {
-            return None;
+            return Err(Refused::Malformed);
         }
         let payload_start = (12 + header_len).next_multiple_of(16);
-        if blob
-            .get(12 + header_len..payload_start)?
-            .iter()
-            .any(|&b| b != 0)
-        {
-            return None;
+        let padding = blob
+            .get(12 + header_len..payload_start)
+            .ok_or(Refused::Short)?;
+        if padding.iter().any(|&b| b != 0) {
+            return Err(Refused::Malformed);
         }
-        let payload = blob.get(payload_start..payload_start + header.payload_len as usize)?;
-        (crc32(payload) == header.payload_crc).then_some((version, header, payload))
+        let payload = blob
+            .get(payload_start..payload_start + header.payload_len as usize)
+            .ok_or(Refused::Short)?;
+        if crc32(payload) != header.payload_crc {
+            return Err(Refused::PayloadCrc);
+        }
+        Ok((header, payload))
     }
 }
 
 #[test]
 fn the_spec_decoder_reads_the_example() {
     let blob = hex(EXAMPLE_HEX);
-    let (version, header, payload) = spec::parse(&blob).unwrap();
-    assert_eq!(version, 1);
+    let (header, payload) = spec::parse(&blob).unwrap();
     assert_eq!(&header, Model::from_bytes(&blob).unwrap().header());
-    assert_eq!(payload, &blob[48..]);
+    assert_eq!(payload, &blob[64..]);
 }
 
 fn layer(
@@ -744,7 +1156,6 @@ fn layer(
             weights: w,
             acc,
             activation: act,
-            gated: experts > 1,
             weight_section: empty(),
             bias_section: empty(),
             requant_section: empty(),
@@ -762,11 +1173,14 @@ fn layer(
             })
             .collect(),
         cp: None,
+        gated: experts > 1,
     }
 }
 
 /// Larger and stranger headers than the example: multi-byte varints in
-/// every field kind, every gating, both weight and accumulator formats.
+/// every field kind, every gating, both weight and accumulator formats,
+/// chains and a graph with concatenations, a partial output slice and a
+/// softmax gate.
 #[test]
 fn the_spec_decoder_agrees_with_the_runtime_on_real_blobs() {
     use AccWidth::*;
@@ -778,8 +1192,9 @@ fn the_spec_decoder_agrees_with_the_runtime_on_real_blobs() {
         (Gating::Linear { tables: 10 }, 10),
         (Gating::CatmullRom { points: 4 }, 4),
     ];
+    let mut blobs = Vec::new();
     for (gating, experts) in gatings {
-        let m = QModel {
+        let chain = QModel {
             kind: QKind::Model(ModelKind::Pfnn),
             gating,
             input_stage: (0..200)
@@ -791,31 +1206,113 @@ fn the_spec_decoder_agrees_with_the_runtime_on_real_blobs() {
                 layer(3, 150, experts, I16, I64, Elu),
                 layer(150, 130, 1, I16, I32, Identity),
             ],
+            wiring: Wiring::Chain,
         };
-        let blob = encode(&m).unwrap();
-        let model = Model::from_bytes(&blob).unwrap();
-        let (version, header, payload) = spec::parse(&blob).unwrap();
-        assert_eq!(version, 1);
+        // The same layers as a graph: a softmax gate over four logits
+        // (two slices of one layer, concatenated) drives a layer that
+        // reads a concatenation of node 0 and part of the input.
+        let mut logits = layer(200, 4, 1, I8, I32, Identity);
+        for r in &mut logits.requant {
+            r.frac = 9;
+        }
+        let mut graph = chain.clone();
+        graph.layers = vec![
+            layer(200, 3, experts, I8, I32, Elu),
+            logits,
+            layer(13, 150, 4, I16, I64, Elu),
+            layer(150, 131, 1, I16, I32, Identity),
+        ];
+        graph.wiring = Wiring::Graph {
+            nodes: vec![
+                QNode {
+                    op: QNodeOp::Layer(0),
+                    inputs: vec![slice(Source::Input, 0, 200)],
+                    gate: if experts > 1 {
+                        GateSource::Phase
+                    } else {
+                        GateSource::None
+                    },
+                },
+                QNode {
+                    op: QNodeOp::Layer(1),
+                    inputs: vec![slice(Source::Input, 0, 200)],
+                    gate: GateSource::None,
+                },
+                QNode {
+                    op: QNodeOp::Softmax(SoftmaxDesc {
+                        experts: 4,
+                        frac: 9,
+                    }),
+                    inputs: vec![slice(Source::Node(1), 2, 2), slice(Source::Node(1), 0, 2)],
+                    gate: GateSource::None,
+                },
+                QNode {
+                    op: QNodeOp::Layer(2),
+                    inputs: vec![slice(Source::Node(0), 0, 3), slice(Source::Input, 190, 10)],
+                    gate: GateSource::Node(2),
+                },
+                QNode {
+                    op: QNodeOp::Layer(3),
+                    inputs: vec![slice(Source::Node(3), 0, 150)],
+                    gate: GateSource::None,
+                },
+            ],
+            output: slice(Source::Node(4), 1, 130),
+        };
+        blobs.push(encode(&chain).unwrap());
+        blobs.push(encode(&graph).unwrap());
+    }
+    for blob in &blobs {
+        let model = Model::from_bytes(blob).unwrap();
+        let (header, payload) = spec::parse(blob).unwrap();
         assert_eq!(&header, model.header());
         assert_eq!(payload.len(), header.payload_len as usize);
+        assert!(postcard::to_allocvec(&header).unwrap().len() > 127);
         // Sections are 4-aligned and in the encoder's order.
-        let l = &header.layers;
+        let l = |i: usize| *header.nodes[i].layer().unwrap();
         let order = [
             header.input_stage,
             header.output_stage,
-            l[0].weight_section,
-            l[0].bias_section,
-            l[0].requant_section,
-            l[1].weight_section,
+            l(0).weight_section,
+            l(0).bias_section,
+            l(0).requant_section,
+            l(1).weight_section,
         ];
         for w in order.windows(2) {
             assert_eq!(w[1].offset, w[0].end().unwrap().next_multiple_of(4));
         }
+        // ram_bytes is twice the largest span end.
+        let ends = header
+            .nodes
+            .iter()
+            .flat_map(|n| [n.input, n.scratch, n.output])
+            .chain([header.input])
+            .map(|s| s.end())
+            .max()
+            .unwrap();
+        assert_eq!(header.ram_bytes, 2 * ends);
+        let mut rt: Runtime<'_, 1024> = Runtime::new(model).unwrap();
+        let mut y = vec![0f32; 130];
+        rt.run(Phase::from_bits(0x1234_5678), &[0.25; 200], &mut y)
+            .unwrap();
     }
 }
 
 fn arb_section() -> impl Strategy<Value = Section> {
     (any::<u32>(), any::<u32>()).prop_map(|(offset, len)| Section { offset, len })
+}
+
+fn arb_span() -> impl Strategy<Value = Span> {
+    (any::<u16>(), any::<u16>()).prop_map(|(offset, len)| Span { offset, len })
+}
+
+fn arb_slice() -> impl Strategy<Value = Slice> {
+    (
+        prop_oneof![Just(Source::Input), any::<u8>().prop_map(Source::Node)],
+        any::<u16>(),
+        any::<u16>(),
+    )
+        .prop_map(|(source, start, len)| Slice { source, start, len })
 }
 
 fn arb_op() -> impl Strategy<Value = LayerOp> {
@@ -839,26 +1336,47 @@ fn arb_layer() -> impl Strategy<Value = LayerDesc> {
         prop_oneof![Just(WeightFormat::I8), Just(WeightFormat::I16)],
         prop_oneof![Just(AccWidth::I32), Just(AccWidth::I64)],
         prop_oneof![Just(Activation::Identity), Just(Activation::Elu)],
-        any::<bool>(),
         (arb_section(), arb_section(), arb_section()),
     )
         .prop_map(
-            |((op, in_dim, out_dim, experts), weights, acc, activation, gated, (w, b, r))| {
-                LayerDesc {
-                    op,
-                    in_dim,
-                    out_dim,
-                    experts,
-                    weights,
-                    acc,
-                    activation,
-                    gated,
-                    weight_section: w,
-                    bias_section: b,
-                    requant_section: r,
-                }
+            |((op, in_dim, out_dim, experts), weights, acc, activation, (w, b, r))| LayerDesc {
+                op,
+                in_dim,
+                out_dim,
+                experts,
+                weights,
+                acc,
+                activation,
+                weight_section: w,
+                bias_section: b,
+                requant_section: r,
             },
         )
+}
+
+fn arb_node() -> impl Strategy<Value = Node> {
+    (
+        prop_oneof![
+            arb_layer().prop_map(NodeOp::Layer),
+            (any::<u16>(), any::<u8>())
+                .prop_map(|(experts, frac)| NodeOp::Softmax(SoftmaxDesc { experts, frac })),
+        ],
+        proptest::collection::vec(arb_slice(), 0..=MAX_NODE_INPUTS),
+        prop_oneof![
+            Just(GateSource::None),
+            Just(GateSource::Phase),
+            any::<u8>().prop_map(GateSource::Node),
+        ],
+        (arb_span(), arb_span(), arb_span()),
+    )
+        .prop_map(|(op, inputs, gate, (input, scratch, output))| Node {
+            op,
+            inputs: inputs.into_iter().collect(),
+            gate,
+            input,
+            scratch,
+            output,
+        })
 }
 
 fn arb_header() -> impl Strategy<Value = Header> {
@@ -867,6 +1385,7 @@ fn arb_header() -> impl Strategy<Value = Header> {
         any::<u16>().prop_map(|tables| Gating::Constant { tables }),
         any::<u16>().prop_map(|tables| Gating::Linear { tables }),
         any::<u16>().prop_map(|points| Gating::CatmullRom { points }),
+        any::<u16>().prop_map(|experts| Gating::Softmax { experts }),
     ];
     (
         prop_oneof![
@@ -882,18 +1401,29 @@ fn arb_header() -> impl Strategy<Value = Header> {
         ],
         gating,
         (any::<u16>(), any::<u16>()),
-        proptest::collection::vec(arb_layer(), 0..=MAX_LAYERS),
+        proptest::collection::vec(arb_node(), 0..=MAX_NODES),
+        (arb_span(), arb_slice()),
         (arb_section(), arb_section()),
         (any::<u32>(), any::<u32>(), any::<u32>(), any::<u32>()),
     )
         .prop_map(
-            |(kind, gating, (input_dim, output_dim), layers, (i, o), (ram, macs, len, crc))| {
+            |(
+                kind,
+                gating,
+                (input_dim, output_dim),
+                nodes,
+                (input, output),
+                (i, o),
+                (ram, macs, len, crc),
+            )| {
                 Header {
                     kind,
                     gating,
                     input_dim,
                     output_dim,
-                    layers: layers.into_iter().collect(),
+                    nodes: nodes.into_iter().collect(),
+                    input,
+                    output,
                     input_stage: i,
                     output_stage: o,
                     ram_bytes: ram,
@@ -914,9 +1444,12 @@ proptest! {
     #[test]
     fn the_spec_decoder_reads_any_header(h in arb_header()) {
         let bytes = postcard::to_allocvec(&h).unwrap();
+        prop_assert!(bytes.len() <= 3202);
         let mut r = spec::Reader::new(&bytes);
         prop_assert_eq!(r.header(), Some(h.clone()));
         prop_assert!(r.at_end());
+        // And the runtime's decoder reads the spec's bytes back the same.
+        prop_assert_eq!(postcard::from_bytes::<Header>(&bytes).ok(), Some(h.clone()));
         let payload = [0xA5u8; 5];
         let framed = frame(&h, &payload);
         prop_assert_eq!(&framed, &frame_raw(FORMAT_VERSION, &bytes, &payload));
@@ -924,5 +1457,16 @@ proptest! {
         // The runtime reads the same header back (or refuses a payload
         // length that does not match, after decoding the header).
         prop_assert_eq!(blob_len_from_prefix(&framed).ok(), Some((12 + bytes.len()).next_multiple_of(16) + h.payload_len as usize));
+        // The spec parser and the runtime's framing agree on it.
+        let mut exact = framed.clone();
+        exact.truncate((12 + bytes.len()).next_multiple_of(16));
+        exact.extend(std::iter::repeat_n(0xA5u8, (h.payload_len as usize).min(64)));
+        if h.payload_len as usize <= 64 {
+            let mut h2 = h.clone();
+            h2.payload_crc = crc32(&exact[(12 + bytes.len()).next_multiple_of(16)..]);
+            let b2 = frame(&h2, &exact[(12 + bytes.len()).next_multiple_of(16)..]);
+            let (sh, _) = spec::parse(&b2).unwrap();
+            prop_assert_eq!(sh, h2);
+        }
     }
 }
