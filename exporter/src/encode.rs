@@ -3,17 +3,24 @@
 //! The inverse of `phasegate::Model::from_bytes`; see `docs/blob-format.md`.
 
 use phasegate::blob::{
-    crc32, AccWidth, Gating, Header, LayerDesc, LayerOp, ModelKind, Requant, Section, WeightFormat,
-    FORMAT_VERSION, MAGIC, MAX_LAYERS, MAX_STYLE_NAME, PAYLOAD_ALIGN, PREAMBLE_LEN,
+    crc32, AccWidth, GateSource, Gating, Header, LayerDesc, LayerOp, ModelKind, Node, NodeOp,
+    Requant, Section, Slice, SoftmaxDesc, Source, Span, WeightFormat, FORMAT_VERSION, MAGIC,
+    MAX_NODES, MAX_STYLE_NAME, PAYLOAD_ALIGN, PREAMBLE_LEN,
 };
 use phasegate::ops::cp::MidRecord;
+use phasegate::ops::{GatedOp, Layer};
+
+use crate::plan::plan_arena;
 
 /// Why a model cannot be encoded (a bug in the caller, not bad user input).
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum EncodeError {
-    /// More layers than a header holds.
-    #[error("{0} layers: a blob holds at most {MAX_LAYERS}")]
-    TooManyLayers(usize),
+    /// More nodes than a header holds.
+    #[error("{0} nodes: a blob holds at most {MAX_NODES}")]
+    TooManyNodes(usize),
+    /// The wiring does not describe a valid graph (the runtime's check).
+    #[error("the graph is invalid: {0}")]
+    Graph(phasegate::Error),
     /// A dimension or the payload does not fit its header field.
     #[error("{0} is too large for the blob format")]
     TooLarge(&'static str),
@@ -61,6 +68,45 @@ pub struct QLayer {
     pub requant: Vec<Requant>,
     /// CP arrays (CP layers only).
     pub cp: Option<QCp>,
+    /// Whether the layer is phase-gated when the model is a chain
+    /// ([`Wiring::Chain`]); a graph's nodes name their gate source.
+    pub gated: bool,
+}
+
+/// What a node of a [`Wiring::Graph`] computes.
+#[derive(Clone, Debug, PartialEq)]
+pub enum QNodeOp {
+    /// Layer `i` of [`QModel::layers`].
+    Layer(usize),
+    /// A softmax gate.
+    Softmax(SoftmaxDesc),
+}
+
+/// One node of a graph: its op, the slices it concatenates, its gate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct QNode {
+    /// The op.
+    pub op: QNodeOp,
+    /// Input slices, concatenated in order.
+    pub inputs: Vec<Slice>,
+    /// Where its expert coefficients come from.
+    pub gate: GateSource,
+}
+
+/// How the layers of a [`QModel`] are connected.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Wiring {
+    /// Each layer reads the whole output of the one before (the first the
+    /// input), phase-gated when [`QLayer::gated`]; the output is the last
+    /// layer's.
+    Chain,
+    /// Any graph of layers and softmax gates.
+    Graph {
+        /// Nodes in evaluation order.
+        nodes: Vec<QNode>,
+        /// The model's output.
+        output: Slice,
+    },
 }
 
 /// What kind of blob to write.
@@ -93,6 +139,46 @@ pub struct QModel {
     pub output_stage: Vec<(f32, f32)>,
     /// Layers (exactly one, the adapter, for styles).
     pub layers: Vec<QLayer>,
+    /// How they are connected (a style's one layer is a chain).
+    pub wiring: Wiring,
+}
+
+impl QModel {
+    /// The graph of the model: its nodes and output, a chain spelled out.
+    pub fn graph(&self) -> (Vec<QNode>, Slice) {
+        match &self.wiring {
+            Wiring::Graph { nodes, output } => (nodes.clone(), *output),
+            Wiring::Chain => {
+                let mut nodes = Vec::new();
+                let mut source = Source::Input;
+                for (i, l) in self.layers.iter().enumerate() {
+                    nodes.push(QNode {
+                        op: QNodeOp::Layer(i),
+                        inputs: vec![Slice {
+                            source,
+                            start: 0,
+                            len: l.desc.in_dim,
+                        }],
+                        gate: if l.gated {
+                            GateSource::Phase
+                        } else {
+                            GateSource::None
+                        },
+                    });
+                    source = Source::Node(i as u8);
+                }
+                let len = self.layers.last().map_or(0, |l| l.desc.out_dim);
+                (
+                    nodes,
+                    Slice {
+                        source,
+                        start: 0,
+                        len,
+                    },
+                )
+            }
+        }
+    }
 }
 
 struct Payload(Vec<u8>);
@@ -228,10 +314,13 @@ fn layer_sections(payload: &mut Payload, l: &QLayer, i: usize) -> Result<LayerDe
     Ok(desc)
 }
 
-/// Lays out the payload, fills in the header and returns the blob bytes.
+/// Lays out the payload, plans the arena, fills in the header and returns
+/// the blob bytes. The header is checked with the runtime's own graph and
+/// plan checks before it is framed.
 pub fn encode(m: &QModel) -> Result<Vec<u8>, EncodeError> {
-    if m.layers.len() > MAX_LAYERS {
-        return Err(EncodeError::TooManyLayers(m.layers.len()));
+    let (graph, output) = m.graph();
+    if graph.len() > MAX_NODES {
+        return Err(EncodeError::TooManyNodes(graph.len()));
     }
     let mut payload = Payload(Vec::new());
     let dim = |n: usize, what| u16::try_from(n).map_err(|_| EncodeError::TooLarge(what));
@@ -269,29 +358,70 @@ pub fn encode(m: &QModel) -> Result<Vec<u8>, EncodeError> {
             )
         }
     };
-    let mut layers = heapless::Vec::<LayerDesc, MAX_LAYERS>::new();
+    let mut descs = Vec::new();
     for (i, l) in m.layers.iter().enumerate() {
-        let desc = layer_sections(&mut payload, l, i)?;
-        layers
-            .push(desc)
-            .map_err(|_| EncodeError::TooManyLayers(m.layers.len()))?;
+        descs.push(layer_sections(&mut payload, l, i)?);
     }
-    let header = Header {
+    let mut nodes = heapless::Vec::new();
+    for (i, n) in graph.iter().enumerate() {
+        let op = match &n.op {
+            QNodeOp::Layer(l) => NodeOp::Layer(*descs.get(*l).ok_or(EncodeError::Length {
+                layer: i,
+                what: "layer index",
+            })?),
+            QNodeOp::Softmax(s) => NodeOp::Softmax(*s),
+        };
+        let span = |len: usize| -> Result<Span, EncodeError> {
+            Ok(Span {
+                offset: 0,
+                len: u16::try_from(len).map_err(|_| EncodeError::TooLarge("node width"))?,
+            })
+        };
+        let (in_dim, scratch, out_dim) = match &op {
+            NodeOp::Layer(d) => (
+                d.in_dim,
+                <Layer<'_> as GatedOp<'_>>::scratch(d),
+                usize::from(d.out_dim),
+            ),
+            NodeOp::Softmax(s) => (s.experts, 0, 0),
+        };
+        let node = Node {
+            op,
+            inputs: heapless::Vec::from_slice(&n.inputs)
+                .map_err(|_| EncodeError::TooLarge("number of input slices of a node"))?,
+            gate: n.gate,
+            input: span(usize::from(in_dim))?,
+            scratch: span(scratch)?,
+            output: span(out_dim)?,
+        };
+        nodes
+            .push(node)
+            .map_err(|_| EncodeError::TooManyNodes(graph.len()))?;
+    }
+    let mut header = Header {
         kind,
         gating: m.gating,
         input_dim,
         output_dim,
-        ram_bytes: u32::try_from(phasegate::ram_bytes(&layers))
-            .map_err(|_| EncodeError::TooLarge("RAM"))?,
-        macs_per_frame: u32::try_from(phasegate::macs(&m.gating, &layers))
-            .map_err(|_| EncodeError::TooLarge("MACs per frame"))?,
-        layers,
+        nodes,
+        input: Span {
+            offset: 0,
+            len: input_dim,
+        },
+        output,
         input_stage,
         output_stage,
+        ram_bytes: 0,
+        macs_per_frame: 0,
         payload_len: u32::try_from(payload.0.len())
             .map_err(|_| EncodeError::TooLarge("payload"))?,
         payload_crc: crc32(&payload.0),
     };
+    plan_arena(&mut header)?;
+    phasegate::graph::check_structure(&header).map_err(EncodeError::Graph)?;
+    phasegate::graph::check_plan(&header).map_err(EncodeError::Graph)?;
+    header.macs_per_frame = u32::try_from(phasegate::macs(&header))
+        .map_err(|_| EncodeError::TooLarge("MACs per frame"))?;
     Ok(frame(&header, &payload.0))
 }
 

@@ -3,9 +3,11 @@
 //! diagonal), multiply-accumulates, formats and section offsets.
 
 use phasegate::blob::{
-    AccWidth, Activation, Gating, LayerDesc, LayerOp, WeightFormat, FORMAT_VERSION,
+    AccWidth, Activation, GateSource, Gating, LayerOp, Node, NodeOp, Slice, Source, Span,
+    WeightFormat, FORMAT_VERSION,
 };
-use phasegate::{Model, Style};
+use phasegate::ops::{GatedOp, Layer};
+use phasegate::{node_gating, Model, Style};
 use std::fmt::Write;
 
 fn gating(g: &Gating) -> String {
@@ -14,6 +16,7 @@ fn gating(g: &Gating) -> String {
         Gating::Constant { tables } => format!("constant, {tables} tables"),
         Gating::Linear { tables } => format!("linear, {tables} tables"),
         Gating::CatmullRom { points } => format!("cubic Catmull-Rom, {points} control points"),
+        Gating::Softmax { experts } => format!("softmax gate, {experts} experts"),
     }
 }
 
@@ -33,13 +36,20 @@ pub fn describe(model: &Model<'_>) -> String {
     );
     let _ = writeln!(
         s,
-        "RAM needed       {} bytes (two i16 buffers of {})",
+        "RAM needed       {} bytes (an arena of {} i16, planned and checked)",
         h.ram_bytes,
-        model.buffer_elements()
+        model.arena_elements()
     );
     let _ = writeln!(s, "MACs per frame   {}", h.macs_per_frame);
+    let _ = writeln!(
+        s,
+        "input            arena @{}..{}, output {}",
+        h.input.offset,
+        h.input.end(),
+        slice_name(&h.output)
+    );
     s.push('\n');
-    s.push_str(&layer_table(&h.gating, &h.layers));
+    s.push_str(&node_table(&h.gating, &h.nodes));
     let _ = writeln!(
         s,
         "\ninput stage @{} ({} B), output stage @{} ({} B)",
@@ -57,51 +67,108 @@ pub fn op_name(op: &LayerOp) -> String {
     }
 }
 
-/// The per-layer table: shapes, op, MACs per frame (as
-/// [`phasegate::macs`] counts them), formats and section offsets.
-pub fn layer_table(gating: &Gating, layers: &[LayerDesc]) -> String {
+/// `input[a..b]` or `node k[a..b]`.
+pub fn slice_name(s: &Slice) -> String {
+    let end = u32::from(s.start) + u32::from(s.len);
+    match s.source {
+        Source::Input => format!("input[{}..{end}]", s.start),
+        Source::Node(j) => format!("node {j}[{}..{end}]", s.start),
+    }
+}
+
+fn span_name(s: &Span) -> String {
+    if s.len == 0 {
+        "-".into()
+    } else {
+        format!("@{}..{}", s.offset, s.end())
+    }
+}
+
+/// The per-node table: op, shapes, inputs and gate source, MACs per frame
+/// (as [`phasegate::macs`] counts them), formats, arena spans and section
+/// offsets.
+pub fn node_table(gating: &Gating, nodes: &[Node]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{:>5} {:>5} {:>5} {:>7} {:<12} {:>9} {:>7} {:>4} {:>5} {:>10} {:>10} {:>10}",
-        "layer",
+        "{:>4} {:>5} {:>5} {:>7} {:<12} {:>9} {:<8} {:>7} {:>4} {:>4} {:<13} {:<13} {:<13} {:>9} {:>9} {:>9}  inputs",
+        "node",
         "in",
         "out",
         "experts",
         "op",
         "MACs",
+        "gate",
         "weights",
         "acc",
         "act",
+        "input",
+        "scratch",
+        "output",
         "weights@",
         "bias@",
         "requant@"
     );
-    for (i, l) in layers.iter().enumerate() {
+    for (i, n) in nodes.iter().enumerate() {
+        let inputs: Vec<String> = n.inputs.iter().map(slice_name).collect();
+        let gate = match n.gate {
+            GateSource::None => "-".to_string(),
+            GateSource::Phase => "phase".to_string(),
+            GateSource::Node(j) => format!("node {j}"),
+        };
+        let (name, experts, macs, formats, sections) = match &n.op {
+            NodeOp::Layer(l) => (
+                op_name(&l.op),
+                l.experts,
+                Layer::macs(l, node_gating(gating, nodes, n).active() as u64),
+                (
+                    match l.weights {
+                        WeightFormat::I8 => "int8",
+                        WeightFormat::I16 => "int16",
+                    },
+                    match l.acc {
+                        AccWidth::I32 => "i32",
+                        AccWidth::I64 => "i64",
+                    },
+                    match l.activation {
+                        Activation::Identity => "-",
+                        Activation::Elu => "ELU",
+                    },
+                ),
+                (
+                    l.weight_section.offset.to_string(),
+                    l.bias_section.offset.to_string(),
+                    l.requant_section.offset.to_string(),
+                ),
+            ),
+            NodeOp::Softmax(g) => (
+                format!("softmax Q{}", g.frac),
+                g.experts,
+                0,
+                ("-", "-", "-"),
+                ("-".into(), "-".into(), "-".into()),
+            ),
+        };
         let _ = writeln!(
             s,
-            "{:>5} {:>5} {:>5} {:>7} {:<12} {:>9} {:>7} {:>4} {:>5} {:>10} {:>10} {:>10}",
+            "{:>4} {:>5} {:>5} {:>7} {:<12} {:>9} {:<8} {:>7} {:>4} {:>4} {:<13} {:<13} {:<13} {:>9} {:>9} {:>9}  {}",
             i,
-            l.in_dim,
-            l.out_dim,
-            l.experts,
-            op_name(&l.op),
-            phasegate::macs(gating, core::slice::from_ref(l)),
-            match l.weights {
-                WeightFormat::I8 => "int8",
-                WeightFormat::I16 => "int16",
-            },
-            match l.acc {
-                AccWidth::I32 => "i32",
-                AccWidth::I64 => "i64",
-            },
-            match l.activation {
-                Activation::Identity => "-",
-                Activation::Elu => "ELU",
-            },
-            l.weight_section.offset,
-            l.bias_section.offset,
-            l.requant_section.offset,
+            n.in_dim(),
+            n.out_dim(),
+            experts,
+            name,
+            macs,
+            gate,
+            formats.0,
+            formats.1,
+            formats.2,
+            span_name(&n.input),
+            span_name(&n.scratch),
+            span_name(&n.output),
+            sections.0,
+            sections.1,
+            sections.2,
+            inputs.join(" + "),
         );
     }
     s
@@ -134,6 +201,20 @@ pub fn describe_style(style: &Style<'_>) -> String {
     );
     let _ = writeln!(s, "MACs per frame   {}", style.macs_per_frame());
     s.push('\n');
-    s.push_str(&layer_table(&style.gating(), core::slice::from_ref(d)));
+    let node = Node {
+        op: NodeOp::Layer(*d),
+        inputs: [Slice {
+            source: Source::Input,
+            start: 0,
+            len: d.in_dim,
+        }]
+        .into_iter()
+        .collect(),
+        gate: style.gate(),
+        input: Span::default(),
+        scratch: Span::default(),
+        output: Span::default(),
+    };
+    s.push_str(&node_table(&style.gating(), &[node]));
     s
 }

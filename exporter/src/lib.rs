@@ -15,5 +15,6 @@ pub mod net;
 pub mod npz;
 pub mod ops;
 pub mod pfnn_dir;
+pub mod plan;
 pub mod quantise;
 pub mod style;

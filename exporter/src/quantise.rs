@@ -23,7 +23,7 @@ use phasegate::blob::{
 use serde::Serialize;
 
 use crate::calibrate::{calibrate, normal_inputs, Ranges};
-use crate::encode::{QKind, QLayer, QModel};
+use crate::encode::{QKind, QLayer, QModel, Wiring};
 use crate::net::{GatingMode, Net};
 use crate::ops::NetLayer;
 
@@ -392,7 +392,6 @@ pub(crate) fn layer_desc(
         weights: spec.format,
         acc,
         activation: spec.activation,
-        gated: spec.gated,
         weight_section: Section::default(),
         bias_section: Section::default(),
         requant_section: Section::default(),
@@ -687,6 +686,7 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
             input_stage,
             output_stage,
             layers,
+            wiring: Wiring::Chain,
         },
         layers: reports,
         ranges,

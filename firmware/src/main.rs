@@ -47,14 +47,20 @@ use phasegate_controller::{layout, Locomotion, Network};
 use semihosting::fs::File;
 use semihosting::io::Write as _;
 
-/// Capacity (i16 elements) of each activation buffer, and of the firmware's
-/// input/output staging buffers: the real PFNN's widest layer is 512.
-#[cfg(not(feature = "oversize-buffers"))]
+/// Capacity (i16 elements) of the firmware's input/output staging buffers:
+/// the real PFNN has 342 inputs and 311 outputs.
 const W: usize = 512;
-/// The must-fail case: 2^20 elements is 4 MiB of activations alone, far
+
+/// Capacity (i16 elements) of the activation arena. The real PFNN's plan
+/// needs 1,024 (a 512-wide layer's input and output); a CP layer of rank
+/// up to 512 between two 512-wide layers needs 1,536 (input, middle vector
+/// and output live together).
+#[cfg(not(feature = "oversize-buffers"))]
+const A: usize = 1536;
+/// The must-fail case: 2^20 elements is 2 MiB of activations alone, far
 /// beyond the 256 KiB RAM region, so this build does not link.
 #[cfg(feature = "oversize-buffers")]
-const W: usize = 1 << 20;
+const A: usize = 1 << 20;
 
 /// Capacity (i16 elements) of the styled runtime's adapter scratch buffer:
 /// a style needs two adapter outputs (for blending) plus a CP adapter's
@@ -70,9 +76,9 @@ const N: usize = 4;
 /// Byte alignment of each style blob's offset in the STYLES region.
 const STYLE_ALIGN: usize = 16;
 
-/// The runtime: the base model, its two activation buffers, the adapter
-/// scratch buffer and the bank of styles.
-type Rt = Runtime<'static, W, S, N>;
+/// The runtime: the base model, its activation arena, the adapter scratch
+/// buffer and the bank of styles.
+type Rt = Runtime<'static, A, S, N>;
 
 /// A `static` handed out once as `&'static mut` (no heap, no `static mut`).
 /// Holds either a value written at run time or a constant initial value
@@ -297,8 +303,8 @@ fn main() -> ! {
     };
     let mut file = create_output(&out_header);
 
-    // The runtime accepted the model, so both dims fit W (they are layer
-    // widths); checked again here rather than trusted, so no slice panics.
+    // Checked here rather than trusted, so no slice panics: a model wider
+    // than the staging buffers is refused.
     let record_len = out_header.record_len();
     let (Some(inputs), Some(inputs_q), Some(outputs_q), Some(outputs), Some(record)) = (
         io.inputs.get_mut(..input_dim),

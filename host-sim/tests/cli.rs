@@ -103,7 +103,7 @@ fn demo_prints_the_error_table_and_figures() {
     for needle in [
         "200 frames",
         "overall",
-        "blob size        102016 bytes",
+        "blob size        102064 bytes",
         "RAM needed",
         "MACs per frame   87680",
     ] {

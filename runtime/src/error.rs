@@ -124,6 +124,19 @@ pub enum Error {
         /// The index given.
         index: u32,
     },
+    /// A node reads something that is not defined before it: a later node,
+    /// a slice past the end of its source, a softmax gate's (vectorless)
+    /// output, or a gate source that is not a softmax gate node.
+    GraphInvalid {
+        /// Index of the node (`255` for the model's output).
+        node: u8,
+    },
+    /// The arena plan puts two buffers that are live at the same time on
+    /// the same elements, or a buffer past the arena's end.
+    ArenaOverlap {
+        /// Index of the node whose buffers collide (`255` for the input).
+        node: u8,
+    },
 }
 
 /// Result with the runtime's [`Error`].
@@ -167,7 +180,7 @@ impl fmt::Display for Error {
                 "layer {layer} row {row} could overflow its 32-bit accumulator"
             ),
             Error::HeaderInconsistent => {
-                f.write_str("header RAM or MAC figures differ from its layers")
+                f.write_str("header RAM or MAC figures differ from its nodes")
             }
             Error::BufferTooSmall { needed, capacity } => write!(
                 f,
@@ -197,6 +210,14 @@ impl fmt::Display for Error {
                 write!(f, "style bank full: it holds at most {capacity} styles")
             }
             Error::UnknownStyle { index } => write!(f, "no style with index {index}"),
+            Error::GraphInvalid { node } => write!(
+                f,
+                "node {node} reads an input or gate that is not defined before it"
+            ),
+            Error::ArenaOverlap { node } => write!(
+                f,
+                "arena plan of node {node} overlaps a live buffer or leaves the arena"
+            ),
         }
     }
 }

@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! let model = Model::from_bytes(BLOB)?;            // validates everything once
-//! let mut rt: Runtime<'_, 512> = Runtime::new(model)?;
+//! let mut rt: Runtime<'_, 1024> = Runtime::new(model)?; // arena, i16 elements
 //! rt.run(Phase::from_radians(p)?, &inputs, &mut outputs)?;
 //! ```
 //!
@@ -24,6 +24,7 @@
 pub mod blob;
 mod error;
 pub(crate) mod fixed;
+pub mod graph;
 mod model;
 pub mod ops;
 mod runtime;
@@ -34,8 +35,6 @@ pub use error::{Error, Result};
 pub use fixed::elu::elu_q;
 pub use fixed::gate::Gate;
 pub use fixed::phase::Phase;
-#[cfg(test)]
-pub(crate) use model::max_width;
-pub use model::{macs, ram_bytes, Model, STAGE};
+pub use model::{macs, node_gating, Model, MAX_GATES, STAGE};
 pub use runtime::Runtime;
 pub use style::{Mix, Style, StyleId};

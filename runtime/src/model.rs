@@ -1,16 +1,23 @@
 //! `Model`: a validated, zero-copy view of a blob.
 
 use crate::blob::records::stage_record;
-use crate::blob::{Framed, Gating, Header, LayerDesc, ModelKind, Section, STAGE_RECORD_LEN};
+use crate::blob::{
+    Framed, GateSource, Gating, Header, LayerDesc, ModelKind, Node, NodeOp, Requant, Section,
+    Source, REQUANT_RECORD_LEN, STAGE_RECORD_LEN,
+};
 use crate::error::{Error, Result};
 use crate::fixed::gate::Gate;
 use crate::fixed::phase::Phase;
+use crate::fixed::softmax::MAX_LOGITS;
+use crate::graph::{check_plan, check_structure};
 use crate::ops::common::{check_section, section};
-use crate::ops::dense::DenseLayer;
 use crate::ops::{GatedOp, Layer};
 
-/// Layer index used in errors about the input and output stages.
+/// Index used in errors about the input and output stages.
 pub const STAGE: u8 = 255;
+
+/// Most softmax gates a graph may hold (OMG has one).
+pub const MAX_GATES: usize = 2;
 
 /// A blob that passed every check: its header and its payload, borrowed.
 ///
@@ -77,9 +84,10 @@ impl<'a> Model<'a> {
         self.header.ram_bytes as usize
     }
 
-    /// Elements (i16) each of the two activation buffers must hold.
-    pub fn buffer_elements(&self) -> usize {
-        max_width(&self.header.layers)
+    /// Elements (i16) of the activation arena the model needs: the
+    /// exporter's plan, checked at load (`ram_bytes / 2`).
+    pub fn arena_elements(&self) -> usize {
+        self.ram_bytes() / 2
     }
 
     /// Multiply-accumulates per frame: a function of the header alone.
@@ -92,28 +100,21 @@ impl<'a> Model<'a> {
         Gate::new(&self.header.gating, phase)
     }
 
-    /// Dense layer `i` with its sections (`None` for other ops: see
-    /// [`Model::kernel`]).
-    pub fn layer(&self, i: usize) -> Option<DenseLayer<'a>> {
-        match self.kernel(i)? {
-            Layer::Dense(d) => Some(d),
-            _ => None,
-        }
+    /// Node `i`'s layer, bound to its sections, ready to run (`None` for
+    /// a softmax gate or past the last node).
+    pub fn kernel(&self, i: usize) -> Option<Layer<'a>> {
+        let d = *self.header.nodes.get(i)?.layer()?;
+        Layer::new(self.payload, d, i as u8)
     }
 
-    /// Layer `i` of any op, bound to its sections, ready to run.
-    pub fn kernel(&self, i: usize) -> Option<Layer<'a>> {
-        Layer::new(self.payload, *self.header.layers.get(i)?, i as u8)
+    /// The nodes, in evaluation order.
+    pub fn nodes(&self) -> &[Node] {
+        &self.header.nodes
     }
 
     /// The payload bytes (CRC verified).
     pub fn payload(&self) -> &'a [u8] {
         self.payload
-    }
-
-    /// Number of layers.
-    pub fn layer_count(&self) -> usize {
-        self.header.layers.len()
     }
 
     /// Input-stage records (offset, scale), one per input.
@@ -131,37 +132,64 @@ impl<'a> Model<'a> {
         if matches!(h.kind, ModelKind::Style { .. }) {
             return Err(Error::NotAModel);
         }
-        let gated_experts = validate_gating(&h.gating)?;
-        if h.layers.is_empty() || h.input_dim == 0 || h.output_dim == 0 {
-            return Err(Error::UnsupportedParameter { layer: STAGE });
-        }
-        let mut width = h.input_dim;
-        for (i, l) in h.layers.iter().enumerate() {
-            let li = i as u8;
-            if l.in_dim != width || l.out_dim == 0 {
-                return Err(Error::DimensionMismatch { layer: li });
+        validate_gating(&h.gating)?;
+        check_structure(h)?;
+        let mut gates = 0;
+        for (i, n) in h.nodes.iter().enumerate() {
+            let id = i as u8;
+            match &n.op {
+                NodeOp::Layer(d) => {
+                    if d.experts != node_gating(&h.gating, &h.nodes, n).experts() {
+                        return Err(Error::GatingMismatch { layer: id });
+                    }
+                    Layer::bind(self.payload, *d, id)?;
+                }
+                NodeOp::Softmax(s) => {
+                    gates += 1;
+                    if gates > MAX_GATES
+                        || s.experts == 0
+                        || usize::from(s.experts) > MAX_LOGITS
+                        || s.frac > 15
+                    {
+                        return Err(Error::UnsupportedParameter { layer: id });
+                    }
+                    self.check_logit_formats(n, s.frac, id)?;
+                }
             }
-            let want = if l.gated { gated_experts } else { 1 };
-            if l.experts != want {
-                return Err(Error::GatingMismatch { layer: li });
-            }
-            Layer::bind(self.payload, *l, li)?;
-            width = l.out_dim;
-        }
-        if width != h.output_dim {
-            return Err(Error::DimensionMismatch {
-                layer: (h.layers.len() - 1) as u8,
-            });
         }
         self.validate_stage(h.input_stage, h.input_dim)?;
         self.validate_stage(h.output_stage, h.output_dim)?;
-        if u64::from(h.ram_bytes) != ram_bytes(&h.layers) as u64
-            || u64::from(h.macs_per_frame) != macs(&h.gating, &h.layers)
-        {
+        check_plan(h)?;
+        if u64::from(h.macs_per_frame) != macs(h) {
             return Err(Error::HeaderInconsistent);
         }
-        for (i, l) in h.layers.iter().enumerate() {
-            Layer::bind(self.payload, *l, i as u8)?.check(&h.gating)?;
+        for (i, n) in h.nodes.iter().enumerate() {
+            if let Some(d) = n.layer() {
+                Layer::bind(self.payload, *d, i as u8)?
+                    .check(&node_gating(&h.gating, &h.nodes, n))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Every logit of a softmax gate comes from a layer row of format
+    /// Q`frac` (the gate compares them as plain integers).
+    fn check_logit_formats(&self, n: &Node, frac: u8, id: u8) -> Result<()> {
+        let bad = Error::UnsupportedParameter { layer: id };
+        for s in &n.inputs {
+            let Source::Node(j) = s.source else {
+                return Err(bad);
+            };
+            let rows = self.kernel(usize::from(j)).ok_or(bad)?.requant();
+            let recs = rows.as_chunks::<REQUANT_RECORD_LEN>().0;
+            let start = usize::from(s.start);
+            let picked = recs.get(start..start + usize::from(s.len)).ok_or(bad)?;
+            if picked
+                .iter()
+                .any(|r| Requant::from_bytes(r).map(|r| r.frac) != Some(frac))
+            {
+                return Err(bad);
+            }
         }
         Ok(())
     }
@@ -178,16 +206,32 @@ impl<'a> Model<'a> {
     }
 }
 
+/// A header-level phase gating: counts in range, and not `Softmax`
+/// (which only a gate node can drive).
 pub(crate) fn validate_gating(g: &Gating) -> Result<u16> {
     let ok = match *g {
         Gating::Single => true,
         Gating::Constant { tables } | Gating::Linear { tables } => tables >= 1,
         Gating::CatmullRom { points } => points >= 4,
+        Gating::Softmax { .. } => false,
     };
     if ok {
         Ok(g.experts())
     } else {
         Err(Error::UnsupportedParameter { layer: STAGE })
+    }
+}
+
+/// The gating that drives node `n` of `nodes`: none, the phase gating
+/// `phase`, or its softmax gate's.
+pub fn node_gating(phase: &Gating, nodes: &[Node], n: &Node) -> Gating {
+    match n.gate {
+        GateSource::None => Gating::Single,
+        GateSource::Phase => *phase,
+        GateSource::Node(j) => match nodes.get(usize::from(j)).map(|g| &g.op) {
+            Some(NodeOp::Softmax(s)) => Gating::Softmax { experts: s.experts },
+            _ => Gating::Single,
+        },
     }
 }
 
@@ -200,30 +244,20 @@ fn stage(payload: &[u8], s: Section) -> impl Iterator<Item = (f32, f32)> + '_ {
         .map(stage_record)
 }
 
-/// Widest activation vector of the network (input included; an op's
-/// intermediate vector, such as a CP layer's middle, counts too).
-pub fn max_width(layers: &[LayerDesc]) -> usize {
-    layers
+/// Multiply-accumulates per frame, summed over the layer nodes
+/// ([`GatedOp::macs`] of each op: dense `active x in x out`; CP
+/// `rank x (in + out + active)`; diagonal `active x out`), `active` being
+/// the number of experts the node's gate makes active (1 when ungated).
+/// Softmax gates and concatenations do no multiply-accumulates.
+pub fn macs(h: &Header) -> u64 {
+    h.nodes
         .iter()
-        .map(|l| usize::from(l.in_dim.max(l.out_dim)).max(Layer::scratch(l)))
-        .max()
-        .unwrap_or(0)
-}
-
-/// Activation RAM: two ping-pong i16 buffers of the widest layer.
-pub fn ram_bytes(layers: &[LayerDesc]) -> usize {
-    2 * max_width(layers) * core::mem::size_of::<i16>()
-}
-
-/// Multiply-accumulates per frame, summed over the layers ([`GatedOp::macs`]
-/// of each op: dense `active x in x out`; CP `rank x (in + out + active)`;
-/// diagonal `active x out`), `active` being 1 for ungated layers.
-pub fn macs(gating: &Gating, layers: &[LayerDesc]) -> u64 {
-    layers
-        .iter()
-        .map(|l| {
-            let active = if l.gated { gating.active() } else { 1 } as u64;
-            Layer::macs(l, active)
+        .filter_map(|n| {
+            let d: &LayerDesc = n.layer()?;
+            Some(Layer::macs(
+                d,
+                node_gating(&h.gating, &h.nodes, n).active() as u64,
+            ))
         })
         .sum()
 }

@@ -1,30 +1,38 @@
-//! `Runtime`: the one executor. A model, its two static activation
-//! buffers, and optionally a bank of styles (residual adapters beside a
-//! base layer) with the per-frame [`Mix`].
+//! `Runtime`: the one executor. A model, its static activation arena laid
+//! out by the blob's plan, and optionally a bank of styles (residual
+//! adapters beside a base layer) with the per-frame [`Mix`].
 
-use crate::blob::{Activation, Requant, REQUANT_RECORD_LEN};
+use crate::blob::{Activation, GateSource, NodeOp, Requant, Span, REQUANT_RECORD_LEN};
 use crate::error::{Error, Result};
 use crate::fixed::elu::elu_q;
 use crate::fixed::gate::Gate;
 use crate::fixed::phase::Phase;
 use crate::fixed::{round_shift, sat_i16};
-use crate::model::Model;
+use crate::graph::{gate_slot, in_place, locate};
+use crate::model::{Model, MAX_GATES};
 use crate::ops::GatedOp;
 use crate::style::{Mix, Style, StyleId};
 
 /// Runs a [`Model`] frame by frame, plain or with styles.
 ///
-/// - `W`: capacity, in i16 elements, of each of the two ping-pong
-///   activation buffers ([`Model::buffer_elements`] is what a model needs;
-///   checked by [`Runtime::new`], so no frame can run out of room);
+/// - `A`: capacity, in i16 elements, of the activation arena
+///   ([`Model::arena_elements`] is what a model needs: the exporter's plan,
+///   checked at load; checked again by [`Runtime::new`], so no frame can run
+///   out of room);
 /// - `S`: capacity of the adapter scratch buffer ([`Style::scratch_elements`]
 ///   is what a style needs; checked by [`Runtime::add_style`]); 0 for a
 ///   runtime without styles;
 /// - `N`: how many styles the bank holds; 0 for a runtime without styles.
 ///
-/// Its size is `(2 * W + S) * 2` bytes plus the model's header and the bank:
+/// Its size is `(A + S) * 2` bytes plus the model's header and the bank:
 /// put it in a `static` (or on the stack) and the whole inference needs no
-/// other RAM. Use [`Runtime::required_elements`] to size `W` from a blob.
+/// other RAM. Use [`Runtime::required_elements`] to size `A` from a blob.
+///
+/// Each frame runs the nodes in order: a node's input slices are
+/// concatenated into its input span (read in place when there is one), a
+/// softmax gate turns its logits into the coefficients of the layers it
+/// drives, and a layer runs its op from its input span to its output span,
+/// adding the mix's adapters when it is a style's base layer.
 ///
 /// Styles are stateless: switching or blending between frames changes only
 /// which adapters the next frame adds, never the phase or any other state,
@@ -40,51 +48,50 @@ use crate::style::{Mix, Style, StyleId};
 /// static BLOB: &[u8] = include_bytes!("../../tests/golden/default/model.blob");
 /// let model = Model::from_bytes(BLOB)?; // validates everything, once
 ///
-/// // Size the buffers from the blob, like CMSIS-NN's buffer-size queries.
+/// // Size the arena from the blob, like CMSIS-NN's buffer-size queries:
+/// // the input and the first hidden layer are live together.
 /// let need = Runtime::<0>::required_elements(&model);
-/// assert_eq!(need, 342);
-/// assert!(Runtime::<341>::new(Model::from_bytes(BLOB)?).is_err());
+/// assert_eq!(need, 374);
+/// assert!(Runtime::<373>::new(Model::from_bytes(BLOB)?).is_err());
 ///
-/// let mut rt: Runtime<'_, 342> = Runtime::new(model)?;
+/// let mut rt: Runtime<'_, 374> = Runtime::new(model)?;
 /// let (inputs, mut pose) = ([0.5f32; 342], [0f32; 311]);
 /// rt.run(Phase::from_radians(1.25)?, &inputs, &mut pose)?;
 /// assert!(pose.iter().all(|y| y.is_finite()));
 /// assert_eq!(rt.clipped_inputs(), 0);
 /// # Ok::<(), phasegate::Error>(())
 /// ```
-pub struct Runtime<'a, const W: usize, const S: usize = 0, const N: usize = 0> {
+pub struct Runtime<'a, const A: usize, const S: usize = 0, const N: usize = 0> {
     model: Model<'a>,
     styles: heapless::Vec<Style<'a>, N>,
     mix: Mix,
-    a: [i16; W],
-    b: [i16; W],
+    arena: [i16; A],
     scratch: [i16; S],
     clipped: u32,
 }
 
-impl<'a, const W: usize, const S: usize, const N: usize> Runtime<'a, W, S, N> {
-    /// Bytes of RAM the buffers (activations and adapter scratch) take.
-    pub const CAPACITY_BYTES: usize = (2 * W + S) * core::mem::size_of::<i16>();
+impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
+    /// Bytes of RAM the buffers (activation arena and adapter scratch) take.
+    pub const CAPACITY_BYTES: usize = (A + S) * core::mem::size_of::<i16>();
 
-    /// The activation capacity `W` a model needs (each of the two buffers),
-    /// the way CMSIS-NN's `*_get_buffer_size` functions size a scratch
-    /// buffer: `Runtime::<W>::new` accepts the model iff this is `<= W`.
+    /// The arena capacity `A` a model needs, the way CMSIS-NN's
+    /// `*_get_buffer_size` functions size a scratch buffer:
+    /// `Runtime::<A>::new` accepts the model iff this is `<= A`.
     pub fn required_elements(model: &Model<'_>) -> usize {
-        model.buffer_elements()
+        model.arena_elements()
     }
 
-    /// Wraps a validated model; refuses it when its widest layer does not fit.
+    /// Wraps a validated model; refuses it when its arena does not fit.
     pub fn new(model: Model<'a>) -> Result<Self> {
         let needed = Self::required_elements(&model);
-        if needed > W {
-            return Err(buffer_error(needed, W));
+        if needed > A {
+            return Err(buffer_error(needed, A));
         }
         Ok(Runtime {
             model,
             styles: heapless::Vec::new(),
             mix: Mix::Base,
-            a: [0; W],
-            b: [0; W],
+            arena: [0; A],
             scratch: [0; S],
             clipped: 0,
         })
@@ -97,7 +104,7 @@ impl<'a, const W: usize, const S: usize, const N: usize> Runtime<'a, W, S, N> {
 
     /// Adds a style to the bank after checking it belongs to this base:
     /// same base payload CRC ([`Error::StyleMismatch`] otherwise), an
-    /// existing layer with the adapter's dimensions, gating and output
+    /// existing layer node with the adapter's dimensions, gating and output
     /// formats ([`Error::StyleIncompatible`]), room in the scratch buffer
     /// ([`Error::BufferTooSmall`]) and in the bank ([`Error::TooManyStyles`]).
     pub fn add_style(&mut self, style: Style<'a>) -> Result<StyleId> {
@@ -111,11 +118,16 @@ impl<'a, const W: usize, const S: usize, const N: usize> Runtime<'a, W, S, N> {
         let li = style.layer();
         let incompatible = Error::StyleIncompatible { layer: li };
         let base = self.model.kernel(usize::from(li)).ok_or(incompatible)?;
+        let base_gate = self
+            .model
+            .nodes()
+            .get(usize::from(li))
+            .map_or(GateSource::None, |n| n.gate);
         let (bd, ad) = (base.desc(), style.kernel().desc());
         if bd.in_dim != ad.in_dim
             || bd.out_dim != ad.out_dim
             || style.gating() != self.model.header().gating
-            || (ad.gated && !bd.gated)
+            || (style.gate() == GateSource::Phase && base_gate != GateSource::Phase)
         {
             return Err(incompatible);
         }
@@ -171,15 +183,15 @@ impl<'a, const W: usize, const S: usize, const N: usize> Runtime<'a, W, S, N> {
     }
 
     /// Integer-only inference with the current mix: `input_q` holds the
-    /// quantised input (layer 0's Q format, see [`Runtime::quantise_input`]);
-    /// returns the i16 outputs of the last layer, before the output stage.
+    /// quantised input (the input's Q formats, see
+    /// [`Runtime::quantise_input`]); returns the i16 outputs, before the
+    /// output stage.
     pub fn run_quantised(&mut self, phase: Phase, input_q: &[i16]) -> Result<&[i16]> {
-        let n = self.model.input_dim();
-        check_len(n, input_q.len())?;
-        let dst = self.a.get_mut(..n).ok_or(buffer_error(n, W))?;
+        check_len(self.model.input_dim(), input_q.len())?;
+        let dst = span_mut(&mut self.arena, self.model.header().input)?;
         dst.copy_from_slice(input_q);
-        let in_a = self.forward(phase)?;
-        self.output(in_a)
+        self.forward(phase)?;
+        self.output()
     }
 
     /// Float in, float out, with the current mix: quantises `input` (model
@@ -187,9 +199,10 @@ impl<'a, const W: usize, const S: usize, const N: usize> Runtime<'a, W, S, N> {
     /// runs the network, writes de-quantised outputs (model units) to `output`.
     pub fn run(&mut self, phase: Phase, input: &[f32], output: &mut [f32]) -> Result<()> {
         check_len(self.model.output_dim(), output.len())?;
-        self.clipped = quantise_into(&self.model, input, &mut self.a)?;
-        let in_a = self.forward(phase)?;
-        dequantise_into(&self.model, self.output(in_a)?, output)
+        let dst = span_mut(&mut self.arena, self.model.header().input)?;
+        self.clipped = quantise_into(&self.model, input, dst)?;
+        self.forward(phase)?;
+        dequantise_into(&self.model, self.output()?, output)
     }
 
     /// How many inputs of the last `run` fell outside the range the blob
@@ -212,58 +225,72 @@ impl<'a, const W: usize, const S: usize, const N: usize> Runtime<'a, W, S, N> {
         dequantise_into(&self.model, q, out)
     }
 
-    /// The output rows, in buffer `a` when `in_a`, else in `b`.
-    fn output(&self, in_a: bool) -> Result<&[i16]> {
-        let n = self.model.output_dim();
-        let buf = if in_a { &self.a } else { &self.b };
-        buf.get(..n).ok_or(buffer_error(n, W))
+    /// The model's output slice of the arena.
+    fn output(&self) -> Result<&[i16]> {
+        let h = self.model.header();
+        let s = locate(h, &h.output).ok_or(Error::GraphInvalid { node: STAGE_NODE })?;
+        let cap = self.arena.len();
+        self.arena
+            .get(usize::from(s.offset)..s.end() as usize)
+            .ok_or(buffer_error(s.end() as usize, cap))
     }
 
-    /// Runs every layer from the quantised input in `a`, ping-ponging with
-    /// `b`, adding the mix's adapters beside their base layers; returns
-    /// whether the output ended in `a` (read it with [`Self::output`], so
-    /// `run` can de-quantise without copying the model).
-    fn forward(&mut self, phase: Phase) -> Result<bool> {
-        let gate = self.model.gate(phase);
+    /// Runs every node from the quantised input already in the arena.
+    /// Not inlined: `run` and `run_quantised` share one copy (4.5 KB of
+    /// flash each on Cortex-M4 otherwise).
+    #[inline(never)]
+    fn forward(&mut self, phase: Phase) -> Result<()> {
+        let phase_gate = self.model.gate(phase);
+        let mut gates = [Gate::SINGLE; MAX_GATES];
         let weights = self.mix.weights();
-        let mut src = &mut self.a;
-        let mut dst = &mut self.b;
-        let mut in_a = true;
-        for i in 0..self.model.layer_count() {
-            let layer = self
-                .model
-                .kernel(i)
-                .ok_or(Error::SectionOutOfBounds { layer: i as u8 })?;
-            let g = if layer.desc().gated {
-                gate
-            } else {
-                Gate::SINGLE
-            };
-            let styled = adapters(
-                &self.styles,
-                &weights,
-                i,
-                &gate,
-                &src[..],
-                &mut self.scratch,
-            )?;
-            if !styled {
-                if layer.run_pingpong(&g, &mut src[..], &mut dst[..])? {
-                    core::mem::swap(&mut src, &mut dst);
-                    in_a = !in_a;
+        let h = self.model.header();
+        for (i, node) in h.nodes.iter().enumerate() {
+            if !in_place(node) {
+                let mut at = usize::from(node.input.offset);
+                for s in &node.inputs {
+                    let src = locate(h, s).ok_or(Error::GraphInvalid { node: i as u8 })?;
+                    let dst = Span {
+                        offset: at as u16,
+                        len: src.len,
+                    };
+                    let (from, to, _) = split(&mut self.arena, src, dst, Span::default())?;
+                    to.copy_from_slice(from);
+                    at += usize::from(src.len);
                 }
+            }
+            let layer = match &node.op {
+                NodeOp::Softmax(s) => {
+                    let logits = span_mut(&mut self.arena, node.input)?;
+                    let slot = gate_slot(&h.nodes, i as u8);
+                    if let Some(g) = gates.get_mut(slot) {
+                        *g = Gate::softmax(logits, s.frac)?;
+                    }
+                    continue;
+                }
+                NodeOp::Layer(_) => self
+                    .model
+                    .kernel(i)
+                    .ok_or(Error::SectionOutOfBounds { layer: i as u8 })?,
+            };
+            let gate = match node.gate {
+                GateSource::None => Gate::SINGLE,
+                GateSource::Phase => phase_gate,
+                GateSource::Node(j) => gates
+                    .get(gate_slot(&h.nodes, j))
+                    .copied()
+                    .unwrap_or(Gate::SINGLE),
+            };
+            let (x, scratch, y) = split(&mut self.arena, node.input, node.scratch, node.output)?;
+            let styled = adapters(&self.styles, &weights, i, &phase_gate, x, &mut self.scratch)?;
+            if !styled {
+                layer.run(&gate, x, scratch, y)?;
                 continue;
             }
             // A residual node: the base layer without its activation, plus
             // the mixed adapter output, then the base layer's activation.
             let activation = layer.desc().activation;
             let plain = layer.with_activation(Activation::Identity);
-            if plain.run_pingpong(&g, &mut src[..], &mut dst[..])? {
-                core::mem::swap(&mut src, &mut dst);
-                in_a = !in_a;
-            }
-            let out = usize::from(layer.desc().out_dim);
-            let y = src.get_mut(..out).ok_or(buffer_error(out, W))?;
+            plain.run(&gate, x, scratch, y)?;
             let recs = layer.requant().as_chunks::<REQUANT_RECORD_LEN>().0;
             for ((yj, &rj), rec) in y.iter_mut().zip(&self.scratch[..]).zip(recs) {
                 let v = sat_i16(i64::from(*yj) + i64::from(rj));
@@ -276,14 +303,66 @@ impl<'a, const W: usize, const S: usize, const N: usize> Runtime<'a, W, S, N> {
                 };
             }
         }
-        Ok(in_a)
+        Ok(())
     }
 }
 
-/// Writes the mixed adapter output of layer `layer` into `scratch[..out]`:
+/// Node index of the model's output in errors.
+const STAGE_NODE: u8 = crate::graph::IO;
+
+/// The arena elements of `s`, mutably.
+fn span_mut(arena: &mut [i16], s: Span) -> Result<&mut [i16]> {
+    let cap = arena.len();
+    arena
+        .get_mut(usize::from(s.offset)..s.end() as usize)
+        .ok_or(buffer_error(s.end() as usize, cap))
+}
+
+/// Borrows `read` shared and `w1`, `w2` mutably from one arena. The loader
+/// proved the three disjoint (empty spans are always disjoint); an overlap
+/// or a span past the end is an error, never a panic.
+fn split(
+    arena: &mut [i16],
+    read: Span,
+    w1: Span,
+    w2: Span,
+) -> Result<(&[i16], &mut [i16], &mut [i16])> {
+    let cap = arena.len();
+    let mut order = [(read, 0usize), (w1, 1), (w2, 2)];
+    order.sort_unstable_by_key(|(s, _)| (s.len > 0, s.offset));
+    let mut parts: [&mut [i16]; 3] = [&mut [], &mut [], &mut []];
+    let mut rest = arena;
+    let mut cut = 0usize;
+    for (s, slot) in order {
+        if s.len == 0 {
+            continue;
+        }
+        let start = usize::from(s.offset);
+        let skip = start
+            .checked_sub(cut)
+            .ok_or(Error::ArenaOverlap { node: STAGE_NODE })?;
+        let tail = core::mem::take(&mut rest)
+            .split_at_mut_checked(skip)
+            .ok_or(buffer_error(s.end() as usize, cap))?
+            .1;
+        let (piece, after) = tail
+            .split_at_mut_checked(usize::from(s.len))
+            .ok_or(buffer_error(s.end() as usize, cap))?;
+        if let Some(p) = parts.get_mut(slot) {
+            *p = piece;
+        }
+        rest = after;
+        cut = s.end() as usize;
+    }
+    let [r, a, b] = parts;
+    Ok((r, a, b))
+}
+
+/// Writes the mixed adapter output of node `layer` into `scratch[..out]`:
 /// each active style's i16 output (computed from `x`, the layer's input),
 /// weighted in Q16 and rounded once. Returns `false` when no style of the
 /// mix sits beside this layer.
+#[inline(never)]
 fn adapters(
     styles: &[Style<'_>],
     weights: &[(Option<StyleId>, i64); 2],
@@ -321,7 +400,10 @@ fn adapters(
     for ((slot, buf), w) in used.iter().zip([&mut *first, &mut *second]).zip(&mut ws) {
         if let Some((style, weight)) = slot {
             let k = style.kernel();
-            let g = if k.desc().gated { *gate } else { Gate::SINGLE };
+            let g = match style.gate() {
+                GateSource::Phase => *gate,
+                _ => Gate::SINGLE,
+            };
             k.run(&g, x, middle, buf)?;
             *w = *weight;
         }

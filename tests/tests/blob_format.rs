@@ -167,7 +167,10 @@ fn example_header_is_what_the_document_says() {
     let NodeOp::Layer(l) = n.op else {
         panic!("node 0 is a layer")
     };
-    assert_eq!((l.op, l.in_dim, l.out_dim, l.experts), (LayerOp::Dense, 2, 1, 1));
+    assert_eq!(
+        (l.op, l.in_dim, l.out_dim, l.experts),
+        (LayerOp::Dense, 2, 1, 1)
+    );
     assert_eq!(
         (l.weights, l.acc, l.activation),
         (WeightFormat::I8, AccWidth::I32, Activation::Identity)
@@ -179,7 +182,10 @@ fn example_header_is_what_the_document_says() {
     assert_eq!(n.gate, GateSource::None);
     // One input slice: read in place, so the node's input span is the
     // model input's; no scratch; the output after the input.
-    assert_eq!((n.input, n.scratch, n.output), (span(0, 2), span(0, 0), span(2, 1)));
+    assert_eq!(
+        (n.input, n.scratch, n.output),
+        (span(0, 2), span(0, 0), span(2, 1))
+    );
     assert_eq!(h.input, span(0, 2));
     assert_eq!(h.output, slice(Source::Node(0), 0, 1));
     assert_eq!(h.input_stage, Section { offset: 0, len: 16 });
@@ -255,7 +261,7 @@ fn example_runs_to_the_hand_computed_value() {
     let mut y = [0f32; 1];
     rt.run(Phase::from_bits(0), &x, &mut y).unwrap();
     assert_eq!(y, [3703.0 / 128.0 - 2.5]); // 26.4296875
-    assert_eq!(y, [26.429_687_5]);
+    assert_eq!(f64::from(y[0]), 26.4296875);
 }
 
 #[test]
@@ -474,7 +480,11 @@ fn the_loader_checks_of_the_document() {
     let check = |edit: &dyn Fn(&mut Header), want: Error| {
         let mut h = base.clone();
         edit(&mut h);
-        assert_eq!(Model::from_bytes(&reframe(&h, &payload)).unwrap_err(), want, "{h:?}");
+        assert_eq!(
+            Model::from_bytes(&reframe(&h, &payload)).unwrap_err(),
+            want,
+            "{h:?}"
+        );
     };
     let layer = |h: &mut Header| -> LayerDesc {
         match h.nodes[0].op {
@@ -504,7 +514,10 @@ fn the_loader_checks_of_the_document() {
         &|h| h.nodes.clear(),
         Error::UnsupportedParameter { layer: 255 },
     );
-    check(&|h| h.input.len = 3, Error::DimensionMismatch { layer: 255 });
+    check(
+        &|h| h.input.len = 3,
+        Error::DimensionMismatch { layer: 255 },
+    );
     // Slices: earlier sources only, non-empty, inside the source.
     check(
         &|h| h.nodes[0].inputs[0].source = Source::Node(0),
@@ -549,7 +562,10 @@ fn the_loader_checks_of_the_document() {
         &|h| h.output.source = Source::Node(1),
         Error::GraphInvalid { node: 255 },
     );
-    check(&|h| h.output.len = 0, Error::DimensionMismatch { layer: 255 });
+    check(
+        &|h| h.output.len = 0,
+        Error::DimensionMismatch { layer: 255 },
+    );
     // Per layer: experts, sections.
     check(
         &|h| {

@@ -15,6 +15,13 @@ use ndarray::{Array1, Array2};
 use phasegate::blob::{crc32, Framed, LayerOp, WeightFormat, PAYLOAD_ALIGN, PREAMBLE_LEN};
 use phasegate::ops::cp::MidRecord;
 use phasegate::{Error, Model, Phase, Runtime};
+
+fn lay(h: &mut phasegate::Header, i: usize) -> &mut phasegate::blob::LayerDesc {
+    match &mut h.nodes[i].op {
+        phasegate::blob::NodeOp::Layer(d) => d,
+        phasegate::blob::NodeOp::Softmax(_) => panic!("node {i} is not a layer"),
+    }
+}
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -114,7 +121,7 @@ fn cp_blobs_track_their_float_network() {
 }
 
 /// A CP layer never expands W: MACs per frame follow `R (in + out + K)`,
-/// and the activation buffers must hold the middle vector too.
+/// and the arena must hold the middle vector beside the input and output.
 #[test]
 fn header_figures_count_the_factors() {
     let dense = dense_net(3, [10, 8, 8, 6]);
@@ -122,21 +129,25 @@ fn header_figures_count_the_factors() {
     let (blob, _) = export(&net, None, &QuantOptions::default()).unwrap();
     let m = Model::from_bytes(&blob).unwrap();
     let h = m.header();
-    assert!(matches!(h.layers[1].op, LayerOp::Cp { rank: 20, .. }));
+    assert!(matches!(
+        h.nodes[1].layer().unwrap().op,
+        LayerOp::Cp { rank: 20, .. }
+    ));
     assert_eq!(
         u64::from(m.macs_per_frame()),
         4 * 10 * 8 + 20 * (8 + 8 + 4) + 4 * 8 * 6
     );
-    // The rank (20) is the widest vector.
-    assert_eq!(m.buffer_elements(), 20);
+    // The CP layer's input, middle vector (the rank, 20) and output are
+    // live together: 8 + 20 + 8.
+    assert_eq!(m.arena_elements(), 36);
     assert!(matches!(
-        Runtime::<19>::new(m.clone()),
+        Runtime::<35>::new(m.clone()),
         Err(Error::BufferTooSmall {
-            needed: 20,
-            capacity: 19
+            needed: 36,
+            capacity: 35
         })
     ));
-    assert!(Runtime::<20>::new(m).is_ok());
+    assert!(Runtime::<36>::new(m).is_ok());
 }
 
 /// Same blob, same input, same bits, on every call (integer only).
@@ -192,7 +203,7 @@ fn loader_refuses_bad_cp_layers() {
         a,
         cores,
         mid,
-    } = header.layers[1].op
+    } = header.nodes[1].layer().unwrap().op
     else {
         panic!("layer 1 should be CP")
     };
@@ -222,21 +233,22 @@ fn loader_refuses_bad_cp_layers() {
         Model::from_bytes(&reframe(header.clone(), &p)).unwrap_err(),
         Error::UnsupportedParameter { layer: 1 }
     );
-    // Rank zero.
+    // Rank zero (with the empty scratch span that rank implies).
     let mut h = header.clone();
-    h.layers[1].op = LayerOp::Cp {
+    lay(&mut h, 1).op = LayerOp::Cp {
         rank: 0,
         a,
         cores,
         mid,
     };
+    h.nodes[1].scratch.len = 0;
     assert_eq!(
         Model::from_bytes(&reframe(h, &payload)).unwrap_err(),
         Error::UnsupportedParameter { layer: 1 }
     );
     // A cores section of the wrong length.
     let mut h = header.clone();
-    h.layers[1].op = LayerOp::Cp {
+    lay(&mut h, 1).op = LayerOp::Cp {
         rank,
         a,
         cores: phasegate::blob::Section {
@@ -251,7 +263,7 @@ fn loader_refuses_bad_cp_layers() {
     );
     // An A section outside the payload.
     let mut h = header.clone();
-    h.layers[1].op = LayerOp::Cp {
+    lay(&mut h, 1).op = LayerOp::Cp {
         rank,
         a: phasegate::blob::Section {
             offset: payload.len() as u32,

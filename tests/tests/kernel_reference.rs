@@ -14,8 +14,8 @@
 //! file does not depend on the exporter.
 
 use phasegate::blob::{
-    crc32, AccWidth, Activation, Gating, Header, LayerDesc, LayerOp, ModelKind, Requant, Section,
-    WeightFormat, FORMAT_VERSION, MAGIC,
+    crc32, AccWidth, Activation, GateSource, Gating, Header, LayerDesc, LayerOp, ModelKind, Node,
+    NodeOp, Requant, Section, Slice, Source, Span, WeightFormat, FORMAT_VERSION, MAGIC,
 };
 use phasegate::{Model, Phase, Runtime};
 use proptest::prelude::*;
@@ -47,6 +47,7 @@ fn gate(gating: Gating, phase: u32) -> Vec<(usize, i128)> {
     let p = i128::from(phase);
     match gating {
         Gating::Single => vec![(0, ONE)],
+        Gating::Softmax { .. } => unreachable!("no phase drives a softmax gate"),
         Gating::Constant { tables } => {
             let n = i128::from(tables);
             vec![(((p * n) >> 32) as usize, ONE)]
@@ -110,6 +111,8 @@ fn elu(x: i128, frac: u32, table: &[i128]) -> i128 {
 /// output stage, weights, biases, records, each 4-aligned.
 struct OneLayer {
     gating: Gating,
+    /// Phase-gated, or one expert.
+    gated: bool,
     desc: LayerDesc,
     input_stage: Vec<(f32, f32)>,
     output_stage: Vec<(f32, f32)>,
@@ -160,20 +163,52 @@ fn blob(l: &OneLayer) -> Vec<u8> {
     d.bias_section = push(&mut p, &b);
     let r: Vec<u8> = l.requant.iter().flat_map(|r| r.to_bytes()).collect();
     d.requant_section = push(&mut p, &r);
-    let layers: heapless::Vec<LayerDesc, 8> = [d].into_iter().collect();
-    let header = Header {
+    // One node: the input at the arena's start, the output after it.
+    let input = Span {
+        offset: 0,
+        len: d.in_dim,
+    };
+    let node = Node {
+        op: NodeOp::Layer(d),
+        inputs: [Slice {
+            source: Source::Input,
+            start: 0,
+            len: d.in_dim,
+        }]
+        .into_iter()
+        .collect(),
+        gate: if l.gated {
+            GateSource::Phase
+        } else {
+            GateSource::None
+        },
+        input,
+        scratch: Span::default(),
+        output: Span {
+            offset: d.in_dim,
+            len: d.out_dim,
+        },
+    };
+    let mut header = Header {
         kind: ModelKind::Pfnn,
         gating: l.gating,
         input_dim: d.in_dim,
         output_dim: d.out_dim,
-        ram_bytes: phasegate::ram_bytes(&layers) as u32,
-        macs_per_frame: phasegate::macs(&l.gating, &layers) as u32,
-        layers,
+        nodes: [node].into_iter().collect(),
+        input,
+        output: Slice {
+            source: Source::Node(0),
+            start: 0,
+            len: d.out_dim,
+        },
         input_stage,
         output_stage,
+        ram_bytes: 2 * (u32::from(d.in_dim) + u32::from(d.out_dim)),
+        macs_per_frame: 0,
         payload_len: p.len() as u32,
         payload_crc: crc32(&p),
     };
+    header.macs_per_frame = phasegate::macs(&header) as u32;
     let h = postcard::to_allocvec(&header).unwrap();
     let mut out = MAGIC.to_vec();
     out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
@@ -206,6 +241,7 @@ fn gates_match_the_reference_at_every_boundary() {
         // blended sum >> 16 is the output, so it reads the gate directly.
         let m = OneLayer {
             gating,
+            gated: true,
             input_stage: vec![(0.0, 1.0)],
             output_stage: vec![(1.0, 0.0)],
             desc: LayerDesc {
@@ -216,7 +252,6 @@ fn gates_match_the_reference_at_every_boundary() {
                 weights: WeightFormat::I16,
                 acc: AccWidth::I64,
                 activation: Activation::Identity,
-                gated: true,
                 weight_section: Section::default(),
                 bias_section: Section::default(),
                 requant_section: Section::default(),
@@ -231,7 +266,7 @@ fn gates_match_the_reference_at_every_boundary() {
             }],
         };
         let blob = blob(&m);
-        let mut rt: Runtime<'_, 1> = Runtime::new(Model::from_bytes(&blob).unwrap()).unwrap();
+        let mut rt: Runtime<'_, 2> = Runtime::new(Model::from_bytes(&blob).unwrap()).unwrap();
         let n = u64::from(experts);
         let mut phases = vec![0u32, u32::MAX];
         for k in 0..n {
@@ -347,6 +382,7 @@ fn reference_quantise(x: f32, offset: f32, scale: f32) -> i16 {
 fn stage_model(offset: f32, scale: f32, out_scale: f32, out_offset: f32) -> Vec<u8> {
     blob(&OneLayer {
         gating: Gating::Single,
+        gated: false,
         input_stage: vec![(offset, scale)],
         output_stage: vec![(out_scale, out_offset)],
         desc: LayerDesc {
@@ -357,7 +393,6 @@ fn stage_model(offset: f32, scale: f32, out_scale: f32, out_offset: f32) -> Vec<
             weights: WeightFormat::I16,
             acc: AccWidth::I32,
             activation: Activation::Identity,
-            gated: false,
             weight_section: Section::default(),
             bias_section: Section::default(),
             requant_section: Section::default(),
@@ -394,7 +429,7 @@ proptest! {
         out_offset in -100.0f32..100.0,
     ) {
         let blob = stage_model(offset, scale, out_scale, out_offset);
-        let mut rt: Runtime<'_, 1> = Runtime::new(Model::from_bytes(&blob).unwrap()).unwrap();
+        let mut rt: Runtime<'_, 2> = Runtime::new(Model::from_bytes(&blob).unwrap()).unwrap();
         let mut q = [0i16];
         rt.quantise_input(&[x], &mut q).unwrap();
         let want = reference_quantise(x, offset, scale);
@@ -410,7 +445,7 @@ proptest! {
 #[test]
 fn input_rounding_is_half_away_from_zero_except_just_below_one_half() {
     let blob = stage_model(0.0, 1.0, 1.0, 0.0);
-    let rt: Runtime<'_, 1> = Runtime::new(Model::from_bytes(&blob).unwrap()).unwrap();
+    let rt: Runtime<'_, 2> = Runtime::new(Model::from_bytes(&blob).unwrap()).unwrap();
     let q = |x: f32| {
         let mut q = [0i16];
         rt.quantise_input(&[x], &mut q).unwrap();

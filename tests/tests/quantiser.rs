@@ -60,14 +60,14 @@ fn tiny_hidden_rows_stay_in_q15() {
         let model = Model::from_bytes(&blob).unwrap();
         assert!(
             model
-                .layer(0)
+                .kernel(0)
                 .unwrap()
-                .requant
+                .requant()
                 .chunks(8)
                 .all(|r| r[6] <= 15),
             "{weights:?}: a hidden row finer than Q15"
         );
-        let mut rt: Runtime<'_, 8> = Runtime::new(model).unwrap();
+        let mut rt: Runtime<'_, 16> = Runtime::new(model).unwrap();
         let x = [0.3f32, -0.2, 0.1, 0.5];
         let mut y = [0.0f32; 2];
         rt.run(Phase::from_bits(0), &x, &mut y).unwrap();

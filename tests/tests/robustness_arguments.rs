@@ -7,42 +7,44 @@ use hostile::*;
 
 #[test]
 fn runtime_capacity_is_checked_when_it_is_made() {
-    let blob = hand_blob(); // widest layer: 8
+    // 6 -> 8 -> 7 -> 5: the arena plan's largest step is layer 1's input
+    // and output, 8 + 7.
+    let blob = hand_blob();
     let model = Model::from_bytes(&blob).unwrap();
-    assert_eq!(model.buffer_elements(), 8);
+    assert_eq!(model.arena_elements(), 15);
     assert_eq!(
-        Runtime::<7>::new(model.clone()).err(),
+        Runtime::<14>::new(model.clone()).err(),
         Some(Error::BufferTooSmall {
-            needed: 8,
-            capacity: 7
+            needed: 15,
+            capacity: 14
         })
     );
     assert_eq!(
         Runtime::<0>::new(model.clone()).err(),
         Some(Error::BufferTooSmall {
-            needed: 8,
+            needed: 15,
             capacity: 0
         })
     );
-    assert!(Runtime::<8>::new(model.clone()).is_ok());
-    assert_eq!(Runtime::<8>::CAPACITY_BYTES, 32);
-    assert_eq!(model.ram_bytes(), Runtime::<8>::CAPACITY_BYTES);
+    assert!(Runtime::<15>::new(model.clone()).is_ok());
+    assert_eq!(Runtime::<15>::CAPACITY_BYTES, 30);
+    assert_eq!(model.ram_bytes(), Runtime::<15>::CAPACITY_BYTES);
     let q = quantised(WeightFormat::I8);
     let model = Model::from_bytes(&q).unwrap();
     assert_eq!(
-        Runtime::<23>::new(model.clone()).err(),
+        Runtime::<47>::new(model.clone()).err(),
         Some(Error::BufferTooSmall {
-            needed: 24,
-            capacity: 23
+            needed: 48,
+            capacity: 47
         })
     );
-    assert!(Runtime::<24>::new(model).is_ok());
+    assert!(Runtime::<48>::new(model).is_ok());
 }
 
 #[test]
 fn run_refuses_bad_slices_and_non_finite_values() {
     let blob = hand_blob();
-    let mut rt: Runtime<'_, 8> = Runtime::new(Model::from_bytes(&blob).unwrap()).unwrap();
+    let mut rt: Runtime<'_, 15> = Runtime::new(Model::from_bytes(&blob).unwrap()).unwrap();
     let x = [0.5f32, -1.0, 2.0, 0.0, 0.25, -0.75];
     let p = Phase::from_bits(0x1234_5678);
     let mut y = [0f32; 5];
@@ -168,7 +170,7 @@ fn extreme_inputs_and_any_phase_on_real_blobs() {
         hand_blob(),
     ] {
         let model = Model::from_bytes(&blob).unwrap();
-        let rt: Runtime<'_, 24> = Runtime::new(model.clone()).unwrap();
+        let rt: Runtime<'_, 48> = Runtime::new(model.clone()).unwrap();
         let n = model.input_dim();
         // The input stage saturates: every scale is positive.
         let mut q = vec![0i16; n];
@@ -176,7 +178,7 @@ fn extreme_inputs_and_any_phase_on_real_blobs() {
         assert!(q.iter().all(|&v| v == i16::MAX));
         rt.quantise_input(&vec![-f32::MAX; n], &mut q).unwrap();
         assert!(q.iter().all(|&v| v == i16::MIN));
-        let outs = hammer::<24>(model, &phases());
+        let outs = hammer::<48>(model, &phases());
         assert_eq!(outs.len(), 7 * phases().len());
     }
 }
@@ -216,6 +218,7 @@ fn saturating_blob_pins_its_outputs() {
                 usize::from(out)
             ],
             cp: None,
+            gated: true,
         });
     }
     let m = QModel {
@@ -224,9 +227,10 @@ fn saturating_blob_pins_its_outputs() {
         input_stage: vec![(0.0, 1.0); 6],
         output_stage: vec![(1.0, 0.0); 4],
         layers,
+        wiring: Wiring::Chain,
     };
     let blob = encode(&m).unwrap();
-    let outs = hammer::<8>(Model::from_bytes(&blob).unwrap(), &phases());
+    let outs = hammer::<16>(Model::from_bytes(&blob).unwrap(), &phases());
     let per = phases().len();
     // The five experts are equal and the gate sums to exactly 1.0 at every
     // phase, so each output is the sign of sum(x) pinned to a rail.
@@ -248,7 +252,7 @@ fn saturating_blob_pins_its_outputs() {
         }
     }
     let blob2 = encode(&m2).unwrap();
-    let outs2 = hammer::<8>(Model::from_bytes(&blob2).unwrap(), &phases());
+    let outs2 = hammer::<16>(Model::from_bytes(&blob2).unwrap(), &phases());
     assert_eq!(outs2.len(), 7 * per);
     assert!(outs2
         .iter()
@@ -288,10 +292,12 @@ fn i32_row_at_the_bound_does_not_wrap() {
                 2
             ],
             cp: None,
+            gated: false,
         }],
+        wiring: Wiring::Chain,
     };
     let blob = encode(&m).unwrap();
-    let mut rt: Runtime<'_, 2> = Runtime::new(Model::from_bytes(&blob).unwrap()).unwrap();
+    let mut rt: Runtime<'_, 4> = Runtime::new(Model::from_bytes(&blob).unwrap()).unwrap();
     // acc0 = 65535 * 32768 = 2147450880 = i32::MAX - 32767; + bias i32::MIN = -32768.
     let y = rt
         .run_quantised(Phase::from_bits(0), &[-32768, -32768])

@@ -10,10 +10,10 @@ fn hand_blob_is_valid_and_reframes_identically() {
     let p = Parts::of(&blob);
     assert_eq!(p.blob(), blob);
     let h = &p.header;
-    assert_eq!(h.layers.len(), 3);
+    assert_eq!(h.nodes.len(), 3);
     assert_eq!(
-        h.layers
-            .iter()
+        (0..3)
+            .map(|i| layer_of(h, i))
             .map(|l| (l.weights, l.acc))
             .collect::<Vec<_>>(),
         vec![
@@ -27,14 +27,14 @@ fn hand_blob_is_valid_and_reframes_identically() {
         let q = quantised(w);
         let m = Model::from_bytes(&q).unwrap();
         assert_eq!(m.header().gating, Gating::CatmullRom { points: 4 });
-        assert!(m
-            .header()
-            .layers
-            .iter()
-            .all(|l| l.gated && l.experts == 4 && l.weights.bytes() == bytes));
+        assert!(m.header().nodes.iter().all(|n| {
+            let l = n.layer().unwrap();
+            n.gate == GateSource::Phase && l.experts == 4 && l.weights.bytes() == bytes
+        }));
+        // The plan: layer 1's input and output (24 each) live together.
         assert_eq!(
-            (m.input_dim(), m.output_dim(), m.buffer_elements()),
-            (20, 12, 24)
+            (m.input_dim(), m.output_dim(), m.arena_elements()),
+            (20, 12, 48)
         );
     }
 }
@@ -46,27 +46,27 @@ fn sections_out_of_bounds_or_misaligned() {
     let cases: Vec<Case> = vec![
         (
             "weights past the end",
-            Box::new(move |h| h.layers[1].weight_section.offset = len.next_multiple_of(4) + 4),
+            Box::new(move |h| lay(h, 1).weight_section.offset = len.next_multiple_of(4) + 4),
             Error::SectionOutOfBounds { layer: 1 },
         ),
         (
             "bias misaligned",
-            Box::new(|h| h.layers[1].bias_section.offset += 2),
+            Box::new(|h| lay(h, 1).bias_section.offset += 2),
             Error::SectionOutOfBounds { layer: 1 },
         ),
         (
             "requant misaligned",
-            Box::new(|h| h.layers[2].requant_section.offset += 1),
+            Box::new(|h| lay(h, 2).requant_section.offset += 1),
             Error::SectionOutOfBounds { layer: 2 },
         ),
         (
             "offset + len overflows u32",
-            Box::new(|h| h.layers[0].weight_section.offset = 0xFFFF_FFFC),
+            Box::new(|h| lay(h, 0).weight_section.offset = 0xFFFF_FFFC),
             Error::SectionOutOfBounds { layer: 0 },
         ),
         (
             "last section one record too long",
-            Box::new(|h| h.layers[2].requant_section.len += 8),
+            Box::new(|h| lay(h, 2).requant_section.len += 8),
             Error::SectionOutOfBounds { layer: 2 },
         ),
         (
@@ -93,27 +93,27 @@ fn sections_of_the_wrong_length() {
     let cases: Vec<Case> = vec![
         (
             "weights one byte short",
-            Box::new(|h| h.layers[0].weight_section.len -= 1),
+            Box::new(|h| lay(h, 0).weight_section.len -= 1),
             Error::SectionLength { layer: 0 },
         ),
         (
             "bias one i64 short",
-            Box::new(|h| h.layers[1].bias_section.len -= 8),
+            Box::new(|h| lay(h, 1).bias_section.len -= 8),
             Error::SectionLength { layer: 1 },
         ),
         (
             "requant one record short",
-            Box::new(|h| h.layers[2].requant_section.len -= 8),
+            Box::new(|h| lay(h, 2).requant_section.len -= 8),
             Error::SectionLength { layer: 2 },
         ),
         (
             "bias as if i32",
-            Box::new(|h| h.layers[1].acc = AccWidth::I32),
+            Box::new(|h| lay(h, 1).acc = AccWidth::I32),
             Error::SectionLength { layer: 1 },
         ),
         (
             "weights as if int8",
-            Box::new(|h| h.layers[0].weights = WeightFormat::I8),
+            Box::new(|h| lay(h, 0).weights = WeightFormat::I8),
             Error::SectionLength { layer: 0 },
         ),
         (
@@ -128,7 +128,7 @@ fn sections_of_the_wrong_length() {
         ),
         (
             "empty weights",
-            Box::new(|h| h.layers[1].weight_section.len = 0),
+            Box::new(|h| lay(h, 1).weight_section.len = 0),
             Error::SectionLength { layer: 1 },
         ),
     ];
@@ -145,27 +145,27 @@ fn dimensions_that_do_not_chain() {
     let cases: Vec<Case> = vec![
         (
             "layer 1 input != layer 0 output",
-            Box::new(|h| h.layers[1].in_dim = 9),
+            Box::new(|h| lay(h, 1).in_dim = 9),
             Error::DimensionMismatch { layer: 1 },
         ),
         (
             "layer 0 input != model input",
-            Box::new(|h| h.layers[0].in_dim = 5),
+            Box::new(|h| lay(h, 0).in_dim = 5),
             Error::DimensionMismatch { layer: 0 },
         ),
         (
-            "model input != layer 0 input",
+            "model input != its arena span",
             Box::new(|h| h.input_dim = 7),
-            Error::DimensionMismatch { layer: 0 },
+            Error::DimensionMismatch { layer: STAGE },
         ),
         (
-            "model output != last layer output",
+            "model output != its slice",
             Box::new(|h| h.output_dim = 4),
-            Error::DimensionMismatch { layer: 2 },
+            Error::DimensionMismatch { layer: STAGE },
         ),
         (
             "zero-width layer",
-            Box::new(|h| h.layers[1].out_dim = 0),
+            Box::new(|h| lay(h, 1).out_dim = 0),
             Error::DimensionMismatch { layer: 1 },
         ),
         (
@@ -180,7 +180,7 @@ fn dimensions_that_do_not_chain() {
         ),
         (
             "no layers",
-            Box::new(|h| h.layers.clear()),
+            Box::new(|h| h.nodes.clear()),
             Error::UnsupportedParameter { layer: STAGE },
         ),
     ];
@@ -197,22 +197,22 @@ fn experts_that_do_not_fit_the_gating() {
     let cases: Vec<Case> = vec![
         (
             "gated layer with 4 of 5 experts",
-            Box::new(|h| h.layers[0].experts = 4),
+            Box::new(|h| lay(h, 0).experts = 4),
             Error::GatingMismatch { layer: 0 },
         ),
         (
             "ungated layer with 5 experts",
-            Box::new(|h| h.layers[2].experts = 5),
+            Box::new(|h| lay(h, 2).experts = 5),
             Error::GatingMismatch { layer: 2 },
         ),
         (
             "ungated layer marked gated",
-            Box::new(|h| h.layers[2].gated = true),
+            Box::new(|h| h.nodes[2].gate = GateSource::Phase),
             Error::GatingMismatch { layer: 2 },
         ),
         (
             "gated layer marked ungated",
-            Box::new(|h| h.layers[1].gated = false),
+            Box::new(|h| h.nodes[1].gate = GateSource::None),
             Error::GatingMismatch { layer: 1 },
         ),
         (
@@ -275,16 +275,18 @@ fn a_style_blob_is_not_a_model() {
 #[test]
 fn wrong_ram_or_mac_figures() {
     let base = Parts::of(&hand_blob());
-    assert_eq!(base.header.ram_bytes, 2 * 8 * 2);
+    // The arena plan of 6 -> 8 -> 7 -> 5: 15 elements (layer 1's 8 + 7).
+    assert_eq!(base.header.ram_bytes, 2 * 15);
     assert_eq!(base.header.macs_per_frame, 4 * 6 * 8 + 4 * 8 * 7 + 7 * 5);
     for (ram, macs) in [
-        (34, 451),
-        (30, 451),
+        (32, 451),
+        (28, 451),
+        (31, 451),
         (0, 451),
         (u32::MAX, 451),
-        (32, 452),
-        (32, 450),
-        (32, 0),
+        (30, 452),
+        (30, 450),
+        (30, 0),
     ] {
         let mut p = base.clone();
         (p.header.ram_bytes, p.header.macs_per_frame) = (ram, macs);
@@ -354,7 +356,7 @@ fn requantisation_records_out_of_range() {
 #[test]
 fn i32_rows_that_could_overflow() {
     let base = Parts::of(&hand_blob());
-    let l0 = base.header.layers[0];
+    let l0 = layer_of(&base.header, 0);
     // Layer 0: int16, 6 inputs, 8 rows, 5 experts. Row 5 of expert 3.
     let row_at = |expert: usize, row: usize| {
         l0.weight_section.offset as usize + ((expert * 8 + row) * 6) * 2
@@ -488,35 +490,47 @@ fn headers_that_do_not_decode() {
     malformed(&[]);
     malformed(&header[..header.len() - 1]);
     malformed(&header[..3]);
-    // Unknown enum variants: kind (byte 0; 0-2 are taken), gating (byte 1).
+    // Unknown enum variants: kind (byte 0; 0-2 are taken), gating (byte 1;
+    // 0-4 are taken).
     assert_eq!(header[..3], [0x00, 0x03, 0x05]);
-    for (at, v) in [(0, 3u8), (0, 0x7f), (1, 4), (1, 0x80)] {
+    for (at, v) in [(0, 3u8), (0, 0x7f), (1, 5), (1, 0x80)] {
         let mut h = header.clone();
         h[at] = v;
         malformed(&h);
     }
-    // Layer 0 starts at byte 6 (kind, gating tag, points, input, output, count):
-    // op, in, out, experts, weights, acc, activation, gated.
+    // Gating 4 is `Softmax { experts: 5 }`: it decodes, but only a softmax
+    // gate node can drive it, never the header.
+    let mut h = header.clone();
+    h[1] = 4;
+    assert_eq!(
+        Model::from_bytes(&frame_raw(&h, &p.payload)).unwrap_err(),
+        Error::UnsupportedParameter { layer: STAGE }
+    );
+    // Node 0 starts at byte 6 (kind, gating tag, points, input, output,
+    // count): its op tag (Layer), then the layer's op, in, out, experts,
+    // weights, acc, activation.
     assert_eq!(
         header[5..14],
-        [0x03, 0x00, 0x06, 0x08, 0x05, 0x01, 0x00, 0x01, 0x01]
+        [0x03, 0x00, 0x00, 0x06, 0x08, 0x05, 0x01, 0x00, 0x01]
     );
-    // Unknown op (0-2 are taken), weight format, accumulator, activation; bool 2.
-    for (at, v) in [(6, 3u8), (10, 2), (11, 2), (12, 2), (13, 2), (13, 0xff)] {
+    // Unknown node op (0-1 are taken), layer op (0-2), weight format,
+    // accumulator, activation.
+    for (at, v) in [(6, 2u8), (7, 3), (11, 2), (12, 2), (13, 2), (13, 0xff)] {
         let mut h = header.clone();
         h[at] = v;
         malformed(&h);
     }
-    // More layers than a header holds: the layer count says 9.
-    let layer = p.header.layers[0];
-    let nine: Vec<LayerDesc> = vec![layer; 9];
+    // More nodes than a header holds: the node count says 25.
     let h = &p.header;
+    let many: Vec<Node> = vec![h.nodes[0].clone(); phasegate::blob::MAX_NODES + 1];
     let too_many = postcard::to_allocvec(&(
         h.kind,
         h.gating,
         h.input_dim,
         h.output_dim,
-        nine,
+        many,
+        h.input,
+        h.output,
         h.input_stage,
         h.output_stage,
         (h.ram_bytes, h.macs_per_frame, h.payload_len, h.payload_crc),

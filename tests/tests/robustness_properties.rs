@@ -70,7 +70,7 @@ proptest! {
         // Keep the requantisation records loadable half of the time.
         if seed % 2 == 0 {
             for l in 0..3 {
-                for r in 0..usize::from(p.header.layers[l].out_dim) {
+                for r in 0..usize::from(layer_of(&p.header, l).out_dim) {
                     let rec = p.requant_at(l, r);
                     rec[4] %= 63;
                     rec[5] %= 63;

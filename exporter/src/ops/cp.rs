@@ -226,6 +226,7 @@ pub fn quantise(
         bias,
         requant,
         cp: Some(QCp { a: a.q, cores, mid }),
+        gated: spec.gated,
     };
     let rep = layer_report(
         spec,

@@ -168,6 +168,7 @@ pub fn quantise(
         bias,
         requant,
         cp: None,
+        gated: spec.gated,
     };
     let mut rep = layer_report(spec, &ql, "dense", None, sig, noise);
     rep.max_dot_bits = Some(max_dot);

@@ -25,7 +25,7 @@ use serde::Serialize;
 
 use crate::calibrate::normal_inputs;
 use crate::cp::report::{output_error, OutputError};
-use crate::encode::{encode, QKind, QModel};
+use crate::encode::{encode, QKind, QModel, Wiring};
 use crate::export::format_name;
 use crate::net::{Adapter, Net, NetLayer};
 use crate::quantise::LayerSpec;
@@ -34,11 +34,11 @@ use crate::quantise::QuantOptions;
 /// Integer formats of base layer `layer`: the scales of its input columns
 /// (from layer `layer - 1`'s row formats) and its own rows' `frac`.
 pub fn base_formats(model: &Model<'_>, layer: usize) -> Result<(Vec<f64>, Vec<u8>)> {
-    if layer == 0 || layer + 1 > model.layer_count() {
+    let count = model.nodes().len();
+    if layer == 0 || layer + 1 > count {
         bail!(
             "an adapter must sit beside a hidden layer with a hidden layer before it \
-             (1 <= layer < {}), not layer {layer}",
-            model.layer_count()
+             (1 <= layer < {count}), not layer {layer}"
         );
     }
     let fracs = |i: usize| -> Result<Vec<u8>> {
@@ -156,6 +156,7 @@ pub fn quantise_adapter(
         input_stage: Vec::new(),
         output_stage: Vec::new(),
         layers: vec![ql],
+        wiring: Wiring::Chain,
     })
 }
 
@@ -317,6 +318,7 @@ pub fn describe_style(bytes: &[u8]) -> Result<String> {
         Gating::Constant { tables } => format!("constant {tables}"),
         Gating::Linear { tables } => format!("linear {tables}"),
         Gating::CatmullRom { points } => format!("catmull-rom {points}"),
+        Gating::Softmax { experts } => format!("softmax {experts}"),
     };
     Ok(format!(
         "style {:?}: {form} adapter beside base layer {}, {}x{}, {} experts{}, {} weights, {} bytes, {} MACs/frame\n\
@@ -326,7 +328,11 @@ pub fn describe_style(bytes: &[u8]) -> Result<String> {
         d.out_dim,
         d.in_dim,
         d.experts,
-        if d.gated { "" } else { " (phase-free)" },
+        if s.gate() == phasegate::blob::GateSource::Phase {
+            ""
+        } else {
+            " (phase-free)"
+        },
         format_name(d.weights),
         s.blob_len(),
         s.macs_per_frame(),

@@ -13,9 +13,9 @@ use phasegate::{Model, Runtime};
 use phasegate_controller::layout::{Outputs, JOINTS, OUTPUTS};
 use phasegate_controller::{Command, Locomotion, Network, PfnnController, Pose, Real};
 
-/// Activation buffer capacity of host controllers (elements per buffer):
-/// enough for the published PFNN (512) with room to spare.
-pub const HOST_WIDTH: usize = 2048;
+/// Activation arena capacity of host controllers (i16 elements): the
+/// published PFNN's plan needs 1,024, CP variants a few hundred more.
+pub const HOST_WIDTH: usize = 4096;
 
 /// Something that turns a command stream into poses.
 pub trait Controller {
@@ -29,7 +29,7 @@ pub trait Controller {
 }
 
 /// The device controller's type on the host: the loop over a runtime
-/// with [`HOST_WIDTH`]-element buffers.
+/// with a [`HOST_WIDTH`]-element arena.
 pub type HostController<'a> = PfnnController<Runtime<'a, HOST_WIDTH>>;
 
 /// The device controller, on the host.
@@ -55,19 +55,21 @@ impl<'a> FixedController<'a> {
         &self.inner
     }
 
-    /// RAM of this controller on a device whose buffers are sized for the
-    /// model (`W` = its widest layer) rather than for any model as on the
-    /// host: `PfnnController::<W>::RAM_BYTES`, bytes.
+    /// RAM of this controller on a device whose arena is sized for the
+    /// model (`A` = its planned arena) rather than for any model as on the
+    /// host: `PfnnController::<A>::RAM_BYTES`, bytes.
     pub fn device_ram_bytes(&self) -> usize {
-        let need = self.inner.network().model().buffer_elements();
+        let need = self.inner.network().model().arena_elements();
         device_ram_bytes(need)
     }
 }
 
-/// `PfnnController::<W>::RAM_BYTES` for a run-time `W`: the host type's size
-/// less the activation buffers it has beyond `W` (two i16 buffers).
-pub fn device_ram_bytes(width: usize) -> usize {
-    HostController::RAM_BYTES - 2 * 2 * (HOST_WIDTH - width.min(HOST_WIDTH))
+/// `PfnnController::<A>::RAM_BYTES` for a run-time `A`: the host type's size
+/// less the arena bytes it has beyond `A` (the arena's end is padded to the
+/// next 8-byte field).
+pub fn device_ram_bytes(arena: usize) -> usize {
+    let bytes = |elements: usize| (2 * elements).next_multiple_of(8);
+    HostController::RAM_BYTES - (bytes(HOST_WIDTH) - bytes(arena.min(HOST_WIDTH)))
 }
 
 impl Controller for FixedController<'_> {
@@ -185,12 +187,12 @@ mod tests {
     #[test]
     fn device_ram_matches_the_device_type() {
         assert_eq!(
-            device_ram_bytes(512),
-            PfnnController::<Runtime<'static, 512>>::RAM_BYTES
+            device_ram_bytes(1024),
+            PfnnController::<Runtime<'static, 1024>>::RAM_BYTES
         );
         assert_eq!(
-            device_ram_bytes(342),
-            PfnnController::<Runtime<'static, 342>>::RAM_BYTES
+            device_ram_bytes(374),
+            PfnnController::<Runtime<'static, 374>>::RAM_BYTES
         );
     }
 }

@@ -56,10 +56,10 @@ pub const INSTRUCTIONS_PER_TICK: u64 = 40;
 pub const RAM_BUDGET: u64 = 64 * 1024;
 /// Issue 4's budget for .text.
 pub const TEXT_BUDGET: u64 = 64 * 1024;
-/// Activation capacity of the host runtime (the firmware's is 512).
-pub(crate) const HOST_W: usize = 8192;
+/// Activation arena of the host runtime, i16 elements (the firmware's is 1,536).
+pub(crate) const HOST_W: usize = 16384;
 /// Adapter scratch of the host runtime (the firmware's is 2 x 512 + 64).
-pub(crate) const HOST_S: usize = 4 * HOST_W;
+pub(crate) const HOST_S: usize = 2 * HOST_W;
 /// Style bank of the host runtime (the firmware's holds 4).
 pub(crate) const HOST_N: usize = 16;
 

@@ -393,7 +393,6 @@ fn synthetic_blob(input_dim: usize, width: usize, output_dim: usize, seed: u64) 
             weights: WeightFormat::I8,
             acc: AccWidth::I32,
             activation: Activation::Identity,
-            gated: false,
             weight_section: Section::default(),
             bias_section: Section::default(),
             requant_section: Section::default(),
@@ -410,6 +409,7 @@ fn synthetic_blob(input_dim: usize, width: usize, output_dim: usize, seed: u64) 
             o
         ],
         cp: None,
+        gated: false,
     };
     let layers = vec![layer(input_dim, width), layer(width, output_dim)];
     let m = QModel {
@@ -418,6 +418,7 @@ fn synthetic_blob(input_dim: usize, width: usize, output_dim: usize, seed: u64) 
         input_stage: vec![(0.0, 256.0); input_dim],
         output_stage: vec![(1.0 / 256.0, 0.0); output_dim],
         layers,
+        wiring: exporter::encode::Wiring::Chain,
     };
     encode(&m).expect("synthetic model encodes")
 }
@@ -481,7 +482,8 @@ fn model_too_wide_for_the_buffers_is_refused_at_load() {
     }
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("wide.blob");
-    std::fs::write(&path, synthetic_blob(16, 600, 4, 5)).unwrap();
+    // 16 inputs and a 1,600-wide hidden layer: the arena needs 1,616.
+    std::fs::write(&path, synthetic_blob(16, 1600, 4, 5)).unwrap();
     let err = execute(&TargetArgs {
         model: path.clone(),
         frames: Some(1),
@@ -494,7 +496,7 @@ fn model_too_wide_for_the_buffers_is_refused_at_load() {
         "{msg}"
     );
     assert!(
-        msg.contains("BufferTooSmall { needed: 600, capacity: 512 }"),
+        msg.contains("BufferTooSmall { needed: 1616, capacity: 1536 }"),
         "{msg}"
     );
     assert!(msg.contains("activation buffers too small"), "{msg}");
@@ -725,7 +727,12 @@ fn whole_cp_model_is_bit_exact_on_the_target() {
     let (blob, _) =
         exporter::export::export(&net, None, &exporter::quantise::QuantOptions::default()).unwrap();
     let model = Model::from_bytes(&blob).unwrap();
-    let ops: Vec<_> = model.header().layers.iter().map(|l| l.op).collect();
+    let ops: Vec<_> = model
+        .header()
+        .nodes
+        .iter()
+        .filter_map(|n| n.layer().map(|l| l.op))
+        .collect();
     assert!(
         matches!(
             ops[..],

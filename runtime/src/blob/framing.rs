@@ -7,7 +7,7 @@ use crate::error::{Error, Result};
 /// First four bytes of every blob.
 pub const MAGIC: [u8; 4] = *b"PGMB";
 /// The format version this runtime writes and reads.
-pub const FORMAT_VERSION: u16 = 1;
+pub const FORMAT_VERSION: u16 = 2;
 /// Bytes before the postcard header: magic, version, header length, header CRC.
 pub const PREAMBLE_LEN: usize = 12;
 /// The payload starts at a multiple of this, counted from the blob's first byte.

@@ -7,9 +7,11 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Most layers a blob may hold (the PFNN has 3; OMG's generator and gating
-/// network fit within this too).
-pub const MAX_LAYERS: usize = 8;
+/// Most nodes a graph may hold (the PFNN has 3; OMG has 15 to 20).
+pub const MAX_NODES: usize = 24;
+
+/// Most slices a node's input may be concatenated from.
+pub const MAX_NODE_INPUTS: usize = 4;
 
 /// Which network family, so a controller can refuse a blob that is not its own.
 #[derive(Clone, Copy, Debug, Eq, PartialEq, Serialize, Deserialize)]
@@ -59,6 +61,14 @@ pub enum Gating {
         /// Number of control points (at least 4).
         points: u16,
     },
+    /// Not a phase gating: the coefficients of the layers a softmax gate
+    /// node drives ([`GateSource::Node`]), all `experts` of them active,
+    /// non-negative and summing to exactly one. Never a header's `gating`;
+    /// the loader derives it for each layer the gate feeds.
+    Softmax {
+        /// Number of experts (logits), at most 8.
+        experts: u16,
+    },
 }
 
 impl Gating {
@@ -68,6 +78,7 @@ impl Gating {
             Gating::Single => 1,
             Gating::Constant { tables } | Gating::Linear { tables } => tables,
             Gating::CatmullRom { points } => points,
+            Gating::Softmax { experts } => experts,
         }
     }
 
@@ -77,6 +88,7 @@ impl Gating {
             Gating::Single | Gating::Constant { .. } => 1,
             Gating::Linear { .. } => 2,
             Gating::CatmullRom { .. } => 4,
+            Gating::Softmax { experts } => usize::from(experts),
         }
     }
 }
@@ -183,7 +195,8 @@ pub struct LayerDesc {
     pub in_dim: u16,
     /// Output width.
     pub out_dim: u16,
-    /// Expert count; must equal the gating's (`1` for ungated layers).
+    /// Expert count; must equal the node's gate source's (`1` for
+    /// ungated layers).
     pub experts: u16,
     /// Weight storage.
     pub weights: WeightFormat,
@@ -191,8 +204,6 @@ pub struct LayerDesc {
     pub acc: AccWidth,
     /// Non-linearity.
     pub activation: Activation,
-    /// Whether the layer is gated (uses the phase gate) or has one expert.
-    pub gated: bool,
     /// `experts x out_dim x in_dim` weights, row-major, little-endian.
     pub weight_section: Section,
     /// `experts x out_dim` biases in accumulator units (`acc` wide, LE).
@@ -203,25 +214,158 @@ pub struct LayerDesc {
     pub requant_section: Section,
 }
 
+/// Where a slice of a node's input comes from.
+#[derive(Clone, Copy, Debug, Eq, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Source {
+    /// The quantised model input.
+    Input,
+    /// The output of an earlier node (its index).
+    Node(u8),
+}
+
+/// Elements `start..start + len` of a source.
+#[derive(Clone, Copy, Debug, Eq, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Slice {
+    /// The vector the slice is taken from.
+    pub source: Source,
+    /// First element.
+    pub start: u16,
+    /// Number of elements.
+    pub len: u16,
+}
+
+/// Where a node's expert coefficients come from.
+#[derive(Clone, Copy, Debug, Eq, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum GateSource {
+    /// Ungated: one expert, weight 1.
+    None,
+    /// The header's phase gating.
+    Phase,
+    /// The coefficients an earlier softmax gate node computed this frame.
+    Node(u8),
+}
+
+/// A range of the activation arena, in i16 elements.
+#[derive(Clone, Copy, Debug, Default, Eq, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Span {
+    /// First element.
+    pub offset: u16,
+    /// Number of elements.
+    pub len: u16,
+}
+
+impl Span {
+    /// One past the last element.
+    pub fn end(&self) -> u32 {
+        u32::from(self.offset) + u32::from(self.len)
+    }
+
+    /// Whether the two spans share an element (empty spans share none).
+    pub fn overlaps(&self, other: &Span) -> bool {
+        self.len > 0
+            && other.len > 0
+            && u32::from(self.offset) < other.end()
+            && u32::from(other.offset) < self.end()
+    }
+}
+
+/// A softmax gate: its input (the logits, one per expert, all in Q`frac`)
+/// becomes the Q16 coefficients of the layers whose gate source it is.
+#[derive(Clone, Copy, Debug, Eq, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SoftmaxDesc {
+    /// Number of logits and experts, `1..=8`.
+    pub experts: u16,
+    /// Fraction bits of the logits (at most 15); every row that produces
+    /// one must have this format.
+    pub frac: u8,
+}
+
+/// What a node computes.
+#[derive(Clone, Copy, Debug, Eq, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum NodeOp {
+    /// A gated layer of any [`LayerOp`].
+    Layer(LayerDesc),
+    /// A softmax gate; its output is a gate, not a vector in the arena.
+    Softmax(SoftmaxDesc),
+}
+
+/// One node of the graph, with its place in the arena plan.
+///
+/// Before the op runs, the node's `inputs` are concatenated into `input`
+/// (no copy when `inputs` is one slice already at `input`); the op reads
+/// `input`, keeps its intermediate vector in `scratch` and writes `output`.
+#[derive(Clone, Debug, Eq, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Node {
+    /// The op.
+    pub op: NodeOp,
+    /// Slices concatenated, in order, into the node's input vector.
+    pub inputs: heapless::Vec<Slice, MAX_NODE_INPUTS>,
+    /// Where the expert coefficients come from.
+    pub gate: GateSource,
+    /// Arena range of the concatenated input.
+    pub input: Span,
+    /// Arena range of the op's intermediate vector (empty for one-stage ops).
+    pub scratch: Span,
+    /// Arena range of the output (empty for a softmax gate).
+    pub output: Span,
+}
+
+impl Node {
+    /// The layer descriptor, for a layer node.
+    pub fn layer(&self) -> Option<&LayerDesc> {
+        match &self.op {
+            NodeOp::Layer(d) => Some(d),
+            NodeOp::Softmax(_) => None,
+        }
+    }
+
+    /// Width of the node's input vector.
+    pub fn in_dim(&self) -> u16 {
+        match &self.op {
+            NodeOp::Layer(d) => d.in_dim,
+            NodeOp::Softmax(s) => s.experts,
+        }
+    }
+
+    /// Width of the node's output vector (0 for a softmax gate).
+    pub fn out_dim(&self) -> u16 {
+        match &self.op {
+            NodeOp::Layer(d) => d.out_dim,
+            NodeOp::Softmax(_) => 0,
+        }
+    }
+}
+
 /// The blob header: everything the runtime needs before touching the payload.
 #[derive(Clone, Debug, Eq, PartialEq, Serialize, Deserialize)]
 pub struct Header {
     /// Network family.
     pub kind: ModelKind,
-    /// Gating of the gated layers.
+    /// Phase gating of the nodes whose gate source is [`GateSource::Phase`].
     pub gating: Gating,
     /// Width of the model's float input.
     pub input_dim: u16,
     /// Width of the model's float output.
     pub output_dim: u16,
-    /// Layers in evaluation order.
-    pub layers: heapless::Vec<LayerDesc, MAX_LAYERS>,
+    /// Nodes in evaluation order: a node reads only the input and earlier nodes.
+    pub nodes: heapless::Vec<Node, MAX_NODES>,
+    /// Arena range of the quantised model input.
+    pub input: Span,
+    /// The model's output: a slice of a node's output.
+    pub output: Slice,
     /// `input_dim` records (offset f32, scale f32): `q = round((x - offset) * scale)`.
     pub input_stage: Section,
     /// `output_dim` records (scale f32, offset f32): `y = q * scale + offset`.
     pub output_stage: Section,
-    /// Activation RAM the runtime needs, bytes (two ping-pong i16 buffers of
-    /// the widest layer).
+    /// Bytes of the activation arena: exactly twice the largest end of any
+    /// span of the plan.
     pub ram_bytes: u32,
     /// Multiply-accumulates per frame (all active experts of all layers).
     pub macs_per_frame: u32,
@@ -236,12 +380,12 @@ impl defmt::Format for Header {
     fn format(&self, f: defmt::Formatter) {
         defmt::write!(
             f,
-            "Header {{ kind: {}, gating: {}, in: {}, out: {}, layers: {}, ram: {}, macs: {}, payload: {} }}",
+            "Header {{ kind: {}, gating: {}, in: {}, out: {}, nodes: {}, ram: {}, macs: {}, payload: {} }}",
             self.kind,
             self.gating,
             self.input_dim,
             self.output_dim,
-            self.layers.len(),
+            self.nodes.len(),
             self.ram_bytes,
             self.macs_per_frame,
             self.payload_len

@@ -18,7 +18,8 @@ pub use framing::{
     blob_len_from_prefix, crc32, Framed, FORMAT_VERSION, MAGIC, PAYLOAD_ALIGN, PREAMBLE_LEN,
 };
 pub use header::{
-    AccWidth, Activation, Gating, Header, LayerDesc, LayerOp, ModelKind, Section, WeightFormat,
-    MAX_LAYERS, MAX_STYLE_NAME,
+    AccWidth, Activation, GateSource, Gating, Header, LayerDesc, LayerOp, ModelKind, Node, NodeOp,
+    Section, Slice, SoftmaxDesc, Source, Span, WeightFormat, MAX_NODES, MAX_NODE_INPUTS,
+    MAX_STYLE_NAME,
 };
 pub use records::{Requant, REQUANT_RECORD_LEN, STAGE_RECORD_LEN};

@@ -4,11 +4,13 @@
 
 use super::phase::Phase;
 use super::round_shift;
+use super::softmax::softmax_q16;
 use crate::blob::Gating;
+use crate::error::Result;
 use fixed::types::I16F16;
 
-/// Most experts active in one frame.
-pub const MAX_ACTIVE: usize = 4;
+/// Most experts active in one frame (a softmax gate's every expert).
+pub const MAX_ACTIVE: usize = 8;
 /// Q16 one.
 pub const ONE: i32 = 1 << 16;
 
@@ -26,36 +28,61 @@ impl Gate {
     pub const SINGLE: Gate = Gate {
         len: 1,
         experts: [0; MAX_ACTIVE],
-        weights: [ONE, 0, 0, 0],
+        weights: [ONE, 0, 0, 0, 0, 0, 0, 0],
     };
 
+    /// The gate of a softmax gate node: the Q16 softmax of `logits`
+    /// (Q`frac`, at most [`MAX_ACTIVE`] of them), every expert active.
+    pub fn softmax(logits: &[i16], frac: u8) -> Result<Gate> {
+        let mut weights = [0i32; MAX_ACTIVE];
+        softmax_q16(logits, frac, &mut weights)?;
+        Ok(Gate {
+            len: logits.len() as u8,
+            experts: [0, 1, 2, 3, 4, 5, 6, 7],
+            weights,
+        })
+    }
+
     /// The gate of `gating` at `phase`. Panic-free for any gating value:
-    /// a zero count is treated as one expert.
+    /// a zero count is treated as one expert; `Softmax`, which no phase
+    /// drives, gives [`Gate::SINGLE`].
     pub fn new(gating: &Gating, phase: Phase) -> Gate {
         let p = u64::from(phase.to_bits());
         match *gating {
-            Gating::Single => Gate::SINGLE,
+            Gating::Single | Gating::Softmax { .. } => Gate::SINGLE,
             Gating::Constant { tables } => {
                 let s = p * u64::from(tables.max(1));
-                Gate {
-                    len: 1,
-                    experts: [(s >> 32) as u16, 0, 0, 0],
-                    weights: [ONE, 0, 0, 0],
-                }
+                Gate::one((s >> 32) as u16)
             }
             Gating::Linear { tables } => {
                 let t = tables.max(1);
                 let s = p * u64::from(t);
                 let k = (s >> 32) as u16;
                 let mu = ((s >> 16) & 0xFFFF) as i32;
-                Gate {
-                    len: 2,
-                    experts: [k, next(k, 1, t), 0, 0],
-                    weights: [ONE - mu, mu, 0, 0],
-                }
+                Gate::of([(k, ONE - mu), (next(k, 1, t), mu)])
             }
             Gating::CatmullRom { points } => catmull_rom(p, points.max(1)),
         }
+    }
+
+    fn one(expert: u16) -> Gate {
+        Gate::of([(expert, ONE)])
+    }
+
+    /// The gate of `K <= MAX_ACTIVE` (expert, Q16 coefficient) pairs.
+    fn of<const K: usize>(pairs: [(u16, i32); K]) -> Gate {
+        let mut g = Gate {
+            len: K.min(MAX_ACTIVE) as u8,
+            experts: [0; MAX_ACTIVE],
+            weights: [0; MAX_ACTIVE],
+        };
+        for ((e, w), (ge, gw)) in pairs
+            .into_iter()
+            .zip(g.experts.iter_mut().zip(g.weights.iter_mut()))
+        {
+            (*ge, *gw) = (e, w);
+        }
+        g
     }
 
     /// Number of active experts.
@@ -104,16 +131,12 @@ fn catmull_rom(p: u64, points: u16) -> Gate {
     let w2 = round_shift(m1 + 4 * m2 - 3 * m3, 45) as i32;
     let w3 = round_shift(m3 - m2, 45) as i32;
     let w1 = ONE - w0 - w2 - w3;
-    Gate {
-        len: 4,
-        experts: [
-            next(k1, points.saturating_sub(1), points),
-            k1,
-            next(k1, 1, points),
-            next(k1, 2, points),
-        ],
-        weights: [w0, w1, w2, w3],
-    }
+    Gate::of([
+        (next(k1, points.saturating_sub(1), points), w0),
+        (k1, w1),
+        (next(k1, 1, points), w2),
+        (next(k1, 2, points), w3),
+    ])
 }
 
 #[cfg(test)]

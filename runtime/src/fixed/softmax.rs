@@ -54,9 +54,6 @@
 //! `c_m = 65536 e_m / S - (the others' rounding) >= 65536/8 - 7/2 > 0`
 //! since `e_m = 2^31 >= S/k`.
 
-// Until the OMG gate in the executor calls it, the crate itself does not.
-#![cfg_attr(not(test), allow(dead_code))]
-
 use super::elu::{expm1_neg_q31, POS_SHIFT};
 use crate::error::{Error, Result};
 use core::num::NonZeroU64;
@@ -83,6 +80,7 @@ const ONE: i32 = 1 << 16;
 /// * [`Error::LengthMismatch`] `{ expected: logits.len(), found: coefs.len() }`
 ///   if `coefs` is shorter than `logits`;
 /// * [`Error::UnsupportedParameter`] `{ layer: 255 }` if `frac > 15`.
+#[inline(never)]
 pub fn softmax_q16(logits: &[i16], frac: u8, coefs: &mut [i32]) -> Result<()> {
     let k = logits.len();
     if k == 0 || k > MAX_LOGITS {

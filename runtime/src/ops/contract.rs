@@ -6,8 +6,8 @@
 //!
 //! * **bit-exact**: the kernel equals the op's plain i128 reference (written
 //!   from `docs/blob-format.md` and `docs/cp-and-styles.md`, no shortcuts)
-//!   through every path the executors use: the op's own `run` and
-//!   `run_pingpong`, the closed set [`Layer`], and a one-layer blob loaded
+//!   through every path the executor uses: the op's own `run`, the closed
+//!   set [`Layer`], and a one-layer blob loaded
 //!   by [`Model::from_bytes`] and run by [`Runtime::run_quantised`]. Shapes
 //!   cover every tail length (widths 1..=40), weights, biases and inputs
 //!   favour their extremes (`-32768`, `32767`, `-128`, `0`), gates come from
@@ -32,14 +32,14 @@ use std::vec::Vec;
 
 use super::{GatedOp, Layer};
 use crate::blob::{
-    crc32, AccWidth, Activation, Gating, Header, LayerDesc, ModelKind, Requant, Section,
-    WeightFormat, FORMAT_VERSION, MAGIC,
+    crc32, AccWidth, Activation, GateSource, Gating, Header, LayerDesc, ModelKind, Node, NodeOp,
+    Requant, Section, Slice, Source, Span, WeightFormat, FORMAT_VERSION, MAGIC,
 };
 use crate::error::Error;
 use crate::fixed::elu::elu_q;
 use crate::fixed::gate::Gate;
 use crate::fixed::phase::Phase;
-use crate::{macs, ram_bytes, Model, Runtime};
+use crate::{macs, Model, Runtime};
 
 // ---------------------------------------------------------------------------
 // Random numbers (a seeded xorshift: proptest supplies the seeds).
@@ -110,6 +110,15 @@ pub(crate) struct Shape {
 }
 
 impl Shape {
+    /// The gating that drives the layer: `gating` when gated, else `Single`.
+    pub(crate) fn gating(&self, gating: Gating) -> Gating {
+        if self.gated {
+            gating
+        } else {
+            Gating::Single
+        }
+    }
+
     /// Random formats; `in_dim`, `out_dim` in `1..=max`.
     pub(crate) fn random(rng: &mut Rng, gating: Gating, max_in: usize, max_out: usize) -> Shape {
         let gated = rng.chance(75);
@@ -165,7 +174,6 @@ impl Shape {
             weights: self.weights,
             acc: self.acc,
             activation: self.activation,
-            gated: self.gated,
             weight_section: Section::default(),
             bias_section: Section::default(),
             requant_section: Section::default(),
@@ -375,9 +383,16 @@ impl Payload {
     }
 }
 
-/// A whole blob, framed as `docs/blob-format.md` specifies, of the layers
-/// `descs` over `payload`, with identity input and output stages.
-pub(crate) fn blob(gating: Gating, descs: &[LayerDesc], mut payload: Payload) -> Vec<u8> {
+/// A whole blob, framed as `docs/blob-format.md` specifies, of the chain
+/// of layers `descs` (phase-gated when `gated`) over `payload`, with
+/// identity input and output stages and the simplest valid arena plan:
+/// every buffer after the previous one, nothing reused.
+pub(crate) fn blob(
+    gating: Gating,
+    gated: bool,
+    descs: &[LayerDesc],
+    mut payload: Payload,
+) -> Vec<u8> {
     let (first, last) = (descs[0], descs[descs.len() - 1]);
     let stage = |p: &mut Payload, n: u16, rec: [f32; 2]| {
         let bytes: Vec<u8> = (0..n)
@@ -387,20 +402,62 @@ pub(crate) fn blob(gating: Gating, descs: &[LayerDesc], mut payload: Payload) ->
     };
     let input_stage = stage(&mut payload, first.in_dim, [0.0, 1.0]);
     let output_stage = stage(&mut payload, last.out_dim, [1.0, 0.0]);
-    let layers: heapless::Vec<LayerDesc, 8> = descs.iter().copied().collect();
-    let header = Header {
+    let mut end = 0u16;
+    let mut next = |len: usize| {
+        let s = Span {
+            offset: end,
+            len: len as u16,
+        };
+        end += len as u16;
+        s
+    };
+    let input = next(usize::from(first.in_dim));
+    let mut nodes = heapless::Vec::new();
+    let mut prev = (Source::Input, input);
+    for (i, d) in descs.iter().enumerate() {
+        let scratch = next(<Layer<'_> as GatedOp<'_>>::scratch(d));
+        let output = next(usize::from(d.out_dim));
+        let node = Node {
+            op: NodeOp::Layer(*d),
+            inputs: [Slice {
+                source: prev.0,
+                start: 0,
+                len: d.in_dim,
+            }]
+            .into_iter()
+            .collect(),
+            gate: if gated {
+                GateSource::Phase
+            } else {
+                GateSource::None
+            },
+            input: prev.1,
+            scratch,
+            output,
+        };
+        nodes.push(node).unwrap();
+        prev = (Source::Node(i as u8), output);
+    }
+    let mut header = Header {
         kind: ModelKind::Pfnn,
         gating,
         input_dim: first.in_dim,
         output_dim: last.out_dim,
+        nodes,
+        input,
+        output: Slice {
+            source: prev.0,
+            start: 0,
+            len: last.out_dim,
+        },
         input_stage,
         output_stage,
-        ram_bytes: ram_bytes(&layers) as u32,
-        macs_per_frame: macs(&gating, &layers) as u32,
+        ram_bytes: 2 * u32::from(end),
+        macs_per_frame: 0,
         payload_len: payload.0.len() as u32,
         payload_crc: crc32(&payload.0),
-        layers,
     };
+    header.macs_per_frame = macs(&header) as u32;
     let h = postcard::to_allocvec(&header).unwrap();
     let mut out = Vec::new();
     out.extend_from_slice(&MAGIC);
@@ -456,8 +513,13 @@ pub(crate) trait OpCase: Clone + core::fmt::Debug + Sized {
 // ---------------------------------------------------------------------------
 // The contract.
 
+/// A random gating; `Softmax` stands for a softmax gate node's, whose
+/// coefficients [`gate_for`] draws from random logits.
 pub(crate) fn random_gating(rng: &mut Rng) -> Gating {
-    match rng.below(4) {
+    match rng.below(5) {
+        4 => Gating::Softmax {
+            experts: rng.range(1, 8) as u16,
+        },
         0 => Gating::Single,
         1 => Gating::Constant {
             tables: rng.range(1, 8) as u16,
@@ -484,6 +546,36 @@ pub(crate) fn random_phase(rng: &mut Rng, gating: Gating) -> Phase {
         1 => [0, u32::MAX, 1 << 31][rng.below(3)],
         _ => rng.next() as u32,
     })
+}
+
+/// The gate of a gated layer at `phase`: the phase gating's, or for
+/// `Softmax` the softmax of logits drawn from the phase's bits (often tied
+/// or far apart, so coefficients at 0 and at 1 are common).
+pub(crate) fn gate_for(gating: Gating, phase: Phase) -> Gate {
+    let Gating::Softmax { experts } = gating else {
+        return Gate::new(&gating, phase);
+    };
+    let mut rng = Rng::new(u64::from(phase.to_bits()));
+    let frac = rng.range(0, 15) as u8;
+    let logits: Vec<i16> = (0..experts)
+        .map(|_| rng.edgy(-32768, 32767) as i16)
+        .collect();
+    Gate::softmax(&logits, frac).unwrap()
+}
+
+/// Whether the loader, on a one-layer blob, accepts the layer `desc` of
+/// `shape` over `payload`; `Softmax` gatings, which need a gate node,
+/// ask the op itself.
+fn load_verdict<C: OpCase>(
+    gating: Gating,
+    shape: Shape,
+    desc: LayerDesc,
+    payload: Payload,
+) -> Result<(), Error> {
+    if matches!(gating, Gating::Softmax { .. }) {
+        return C::Op::bind(&payload.0, desc, 0)?.check(&shape.gating(gating));
+    }
+    Model::from_bytes(&blob(gating, shape.gated, &[desc], payload)).map(|_| ())
 }
 
 /// What one layer's runs showed.
@@ -514,24 +606,25 @@ pub(crate) fn check_layer<C: OpCase>(
     let (n_in, out) = (usize::from(desc.in_dim), usize::from(desc.out_dim));
     let p = &payload.0;
     let bound = C::Op::bind(p, desc, 0).unwrap_or_else(|e| panic!("bind: {e:?} {case:?}"));
-    let verdict = bound.check(&gating);
-    let blob = blob(gating, &[desc], payload_clone(&payload));
-    let loaded = Model::from_bytes(&blob);
-    let Ok(model) = loaded else {
-        let e = loaded.err();
-        assert_eq!(e, verdict.err(), "the loader and the op disagree");
+    let shape = case.rows().shape;
+    let verdict = bound.check(&shape.gating(gating));
+    let loaded = load_verdict::<C>(gating, shape, desc, payload_clone(&payload));
+    assert_eq!(loaded, verdict, "the loader and the op disagree");
+    if verdict.is_err() {
         stats.refused += 1;
         return;
-    };
-    assert_eq!(verdict, Ok(()), "the loader accepted what the op refuses");
+    }
     stats.accepted += 1;
     let any = <Layer<'_> as GatedOp<'_>>::bind(p, desc, 0).unwrap();
-    let width = crate::max_width(&[desc]);
-    let mut rt: Runtime<'_, 1024> = Runtime::new(model).unwrap();
+    // The executor's path needs a phase gating (a softmax gate node's
+    // path through it is checked by the graph tests).
+    let blob = blob(gating, shape.gated, &[desc], payload_clone(&payload));
+    let model = Model::from_bytes(&blob).ok();
+    let mut rt: Option<Box<Runtime<'_, 4096>>> = model.map(|m| Box::new(Runtime::new(m).unwrap()));
     for (x, phase) in inputs {
         let x = &x[..n_in];
-        let gate = if desc.gated {
-            Gate::new(&gating, *phase)
+        let gate = if shape.gated {
+            gate_for(gating, *phase)
         } else {
             Gate::SINGLE
         };
@@ -548,19 +641,15 @@ pub(crate) fn check_layer<C: OpCase>(
         let mut scratch = vec![0i16; C::Op::scratch(&desc) + 5];
         bound.run(&gate, x, &mut scratch, &mut big).unwrap();
         assert_eq!(big[..out], want[..], "run, long buffers: {}", ctx());
-        // Ping-pong over two buffers of the model's widest vector.
-        let (mut src, mut dst) = (vec![0i16; width], vec![0i16; width]);
-        src[..n_in].copy_from_slice(x);
-        let swapped = bound.run_pingpong(&gate, &mut src, &mut dst).unwrap();
-        let y = if swapped { &dst } else { &src };
-        assert_eq!(y[..out], want[..], "run_pingpong: {}", ctx());
         // The closed set, and the loaded model through the executor.
         let mut y = vec![0i16; out];
         let mut scratch = vec![0i16; any.scratch_elements()];
         any.run(&gate, x, &mut scratch, &mut y).unwrap();
         assert_eq!(y, want, "Layer::run: {}", ctx());
-        let y = rt.run_quantised(*phase, x).unwrap();
-        assert_eq!(y, &want[..], "Runtime: {}", ctx());
+        if let Some(rt) = rt.as_mut() {
+            let y = rt.run_quantised(*phase, x).unwrap();
+            assert_eq!(y, &want[..], "Runtime: {}", ctx());
+        }
         stats.interesting += want
             .iter()
             .filter(|&&v| v != 0 && v != i16::MAX && v != i16::MIN)
@@ -594,7 +683,7 @@ pub(crate) fn bit_exact<C: OpCase>(seed: u64, n: usize, stats: &mut Stats) -> (G
     let mut rng = Rng::new(seed);
     let gating = random_gating(&mut rng);
     let shape = Shape::random(&mut rng, gating, 40, 24);
-    let case = C::random(&mut rng, shape, gating);
+    let case = C::random(&mut rng, shape, shape.gating(gating));
     let n_in = usize::from(case.encode(&mut Payload::default()).in_dim);
     let inputs: Vec<_> = (0..n)
         .map(|_| (rng.inputs(n_in), random_phase(&mut rng, gating)))
@@ -610,7 +699,7 @@ pub(crate) fn proof_boundary<C: OpCase>(seed: u64) {
     let mut rng = Rng::new(seed);
     let gating = random_gating(&mut rng);
     let shape = Shape::random(&mut rng, gating, 8, 6);
-    let (worst, inputs) = C::worst_case(&mut rng, shape, gating);
+    let (worst, inputs) = C::worst_case(&mut rng, shape, shape.gating(gating));
     let inputs: Vec<_> = inputs
         .into_iter()
         .map(|x| (x, random_phase(&mut rng, gating)))
@@ -621,9 +710,9 @@ pub(crate) fn proof_boundary<C: OpCase>(seed: u64) {
     let load = |c: &C| {
         let mut p = Payload::default();
         let d = c.encode(&mut p);
-        Model::from_bytes(&blob(gating, &[d], p)).map(|_| ())
+        load_verdict::<C>(gating, shape, d, p)
     };
-    let twins = C::past_the_bound(&worst, gating);
+    let twins = C::past_the_bound(&worst, shape.gating(gating));
     for (twin, err) in &twins {
         assert_eq!(load(twin), Err(*err), "{twin:?}");
     }
@@ -642,7 +731,7 @@ pub(crate) fn proof_boundary<C: OpCase>(seed: u64) {
         let mut q = payload_clone(&p);
         q.0[byte] = value;
         assert_eq!(
-            Model::from_bytes(&blob(gating, &[d], q)).map(|_| ()),
+            load_verdict::<C>(gating, shape, d, q),
             bad,
             "record byte {byte} = {value}"
         );
@@ -690,11 +779,12 @@ macro_rules! op_contract {
                         Gating::Constant { .. } => 1,
                         Gating::Linear { .. } => 2,
                         Gating::CatmullRom { .. } => 3,
+                        Gating::Softmax { .. } => 4,
                     };
                     seen.insert((g, s.gated, s.weights as u8, s.acc as u8, s.activation as u8));
                 }
                 std::eprintln!("{}: {stats:?}", stringify!($name));
-                assert_eq!(seen.len(), 64, "{seen:?}");
+                assert_eq!(seen.len(), 80, "{seen:?}");
                 // Every input width (so every tail of any unrolling) 1..=40.
                 assert_eq!(widths.len(), 40, "{widths:?}");
                 assert!(stats.accepted >= 600, "{stats:?}");

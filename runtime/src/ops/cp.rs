@@ -83,7 +83,8 @@ impl MidRecord {
 }
 
 /// Largest `sum_k |g_k|` (Q16) of any gate of `gating`, rounding included.
-/// Constant and linear gates are non-negative and sum to exactly 2^16; the
+/// Constant, linear and softmax gates are non-negative and sum to exactly
+/// 2^16; the
 /// Catmull-Rom basis sums in magnitude to `1 + mu (1 - mu) <= 1.25`, and its
 /// Q16 rounding adds at most a few LSB (8 allowed).
 pub fn gate_l1_max(gating: &Gating) -> i64 {
@@ -94,8 +95,8 @@ pub fn gate_l1_max(gating: &Gating) -> i64 {
 }
 
 /// The core of component `r` blended by `gate`, in core units:
-/// `round(sum_k g_k d_k[r] / 2^16)`. With at most 4 active experts, |g| <= 2^16
-/// each and |d| <= 2^15, the result is below 2^17 in magnitude.
+/// `round(sum_k g_k d_k[r] / 2^16)`. With `sum_k |g_k| <= gate_l1_max < 2^17`
+/// and |d| <= 2^15, the result is below 2^17 in magnitude.
 #[inline(always)]
 pub fn blend_core(cores: &[u8], rank: usize, gate: &Gate, r: usize) -> i64 {
     let mut c = 0i64;
@@ -404,14 +405,6 @@ impl<'a> GatedOp<'a> for CpLayer<'a> {
     fn run(&self, gate: &Gate, x: &[i16], scratch: &mut [i16], y: &mut [i16]) -> Result<()> {
         self.middle(gate, x, scratch)?;
         self.output(gate, scratch, y)
-    }
-
-    /// The middle vector in `dst`, the output back in `src` (so the
-    /// model's two buffers of its widest vector, rank included, suffice).
-    fn run_pingpong(&self, gate: &Gate, src: &mut [i16], dst: &mut [i16]) -> Result<bool> {
-        self.middle(gate, src, dst)?;
-        self.output(gate, dst, src)?;
-        Ok(false)
     }
 }
 

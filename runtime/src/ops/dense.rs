@@ -138,7 +138,13 @@ impl<'a> DenseLayer<'a> {
             .ok_or(Error::SectionLength { layer: self.index })
     }
 
-    fn run_typed<W: Weight, A: Acc>(&self, gate: &Gate, x: &[i16], y: &mut [i16]) -> Result<()> {
+    /// The kernel with up to `PASS` (1, 2 or 4) experts per pass over `x`.
+    fn run_typed<W: Weight, A: Acc, const PASS: usize>(
+        &self,
+        gate: &Gate,
+        x: &[i16],
+        y: &mut [i16],
+    ) -> Result<()> {
         let out = usize::from(self.desc.out_dim);
         let n_in = usize::from(self.desc.in_dim);
         let x = x.get(..n_in).ok_or(too_short(n_in, x.len()))?;
@@ -155,30 +161,39 @@ impl<'a> DenseLayer<'a> {
         let bias_width = self.desc.acc.bytes();
         let records = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
         for (i, (yi, rec)) in y.iter_mut().zip(records).enumerate() {
-            let [e0, e1, e2, e3] = experts;
-            let accs: [i64; MAX_ACTIVE] = match n {
-                1 => {
-                    let [a] = dot1::<W, A>([self.row(e0, i)?], x);
-                    [a.widen(), 0, 0, 0]
-                }
-                2 => {
-                    let [a, b] = dot2::<W, A>([self.row(e0, i)?, self.row(e1, i)?], x);
-                    [a.widen(), b.widen(), 0, 0]
-                }
-                _ => {
-                    let rows = [
-                        self.row(e0, i)?,
-                        self.row(e1, i)?,
-                        self.row(e2, i)?,
-                        self.row(e3, i)?,
-                    ];
-                    dot4::<W, A>(rows, x).map(Acc::widen)
-                }
-            };
             let mut total = 0i64;
-            for ((&e, &g), &acc) in experts.iter().zip(&coefs).zip(&accs).take(n) {
-                let b = bias_at(self.bias, bias_width, usize::from(e) * out + i).unwrap_or(0);
-                total = total.saturating_add(acc.saturating_add(b).saturating_mul(g));
+            // Up to PASS experts per pass over `x`; a softmax gate's eight
+            // take two passes or more. The blend adds in gate order either way.
+            for first in (0..n).step_by(PASS) {
+                let e = |k: usize| experts.get(first + k).copied().unwrap_or(0);
+                let accs: [i64; 4] = match (n - first).min(PASS) {
+                    1 => {
+                        let [a] = dot1::<W, A>([self.row(e(0), i)?], x);
+                        [a.widen(), 0, 0, 0]
+                    }
+                    2 => {
+                        let [a, b] = dot2::<W, A>([self.row(e(0), i)?, self.row(e(1), i)?], x);
+                        [a.widen(), b.widen(), 0, 0]
+                    }
+                    _ => {
+                        let rows = [
+                            self.row(e(0), i)?,
+                            self.row(e(1), i)?,
+                            self.row(e(2), i)?,
+                            self.row(e(3), i)?,
+                        ];
+                        dot4::<W, A>(rows, x).map(Acc::widen)
+                    }
+                };
+                let pass = experts
+                    .iter()
+                    .zip(&coefs)
+                    .skip(first)
+                    .take((n - first).min(PASS));
+                for ((&e, &g), &acc) in pass.zip(&accs) {
+                    let b = bias_at(self.bias, bias_width, usize::from(e) * out + i).unwrap_or(0);
+                    total = total.saturating_add(acc.saturating_add(b).saturating_mul(g));
+                }
             }
             *yi = finish_row(total, rec, self.desc.activation);
         }
@@ -255,10 +270,12 @@ impl<'a> GatedOp<'a> for DenseLayer<'a> {
     /// One pass over `x` per output row; no scratch.
     fn run(&self, gate: &Gate, x: &[i16], _scratch: &mut [i16], y: &mut [i16]) -> Result<()> {
         match (self.desc.weights, self.desc.acc) {
-            (WeightFormat::I8, AccWidth::I32) => self.run_typed::<W8, i32>(gate, x, y),
-            (WeightFormat::I8, AccWidth::I64) => self.run_typed::<W8, i64>(gate, x, y),
-            (WeightFormat::I16, AccWidth::I32) => self.run_typed::<W16, i32>(gate, x, y),
-            (WeightFormat::I16, AccWidth::I64) => self.run_typed::<W16, i64>(gate, x, y),
+            // 64-bit accumulators (rows too heavy for the 32-bit proof, rare)
+            // take one expert per pass: a quarter of the unrolled code.
+            (WeightFormat::I8, AccWidth::I32) => self.run_typed::<W8, i32, 4>(gate, x, y),
+            (WeightFormat::I8, AccWidth::I64) => self.run_typed::<W8, i64, 1>(gate, x, y),
+            (WeightFormat::I16, AccWidth::I32) => self.run_typed::<W16, i32, 4>(gate, x, y),
+            (WeightFormat::I16, AccWidth::I64) => self.run_typed::<W16, i64, 1>(gate, x, y),
         }
     }
 }

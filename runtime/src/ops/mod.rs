@@ -43,7 +43,7 @@ pub use common::requantise;
 ///
 /// The loader calls, for each layer, [`GatedOp::bind`] (sections), then,
 /// once the whole header is consistent, [`GatedOp::check`] (values); the
-/// executors call [`GatedOp::run_pingpong`] (or [`GatedOp::run`]) every frame.
+/// executor calls [`GatedOp::run`] every frame, on spans of its arena.
 pub trait GatedOp<'a>: Sized {
     /// Header only: multiply-accumulates per frame of the layer `desc`
     /// with `active` experts in use (1 when ungated). Counted by the
@@ -51,9 +51,8 @@ pub trait GatedOp<'a>: Sized {
     fn macs(desc: &LayerDesc, active: u64) -> u64;
 
     /// Header only: i16 elements of the intermediate vector the op keeps
-    /// between its stages (0 for a single-stage op). Counts as a width in
-    /// the header's `ram_bytes`, because [`GatedOp::run_pingpong`] keeps it
-    /// in the second buffer.
+    /// between its stages (0 for a single-stage op): the length of the
+    /// node's `scratch` span in the arena plan.
     fn scratch(desc: &LayerDesc) -> usize {
         let _ = desc;
         0
@@ -79,16 +78,8 @@ pub trait GatedOp<'a>: Sized {
     fn requant(&self) -> &'a [u8];
 
     /// The kernel: `x` has `in_dim` elements, `scratch` at least
-    /// [`GatedOp::scratch`], `y` at least `out_dim`.
+    /// [`GatedOp::scratch`], `y` at least `out_dim`; the three never overlap.
     fn run(&self, gate: &Gate, x: &[i16], scratch: &mut [i16], y: &mut [i16]) -> Result<()>;
-
-    /// The kernel over two ping-pong buffers of the model's widest vector:
-    /// reads `src`; returns `true` when the output is in `dst` (swap the
-    /// buffers), `false` when it is back in `src` (a two-stage op keeps its
-    /// intermediate vector in `dst`). The default is `run(src -> dst)`.
-    fn run_pingpong(&self, gate: &Gate, src: &mut [i16], dst: &mut [i16]) -> Result<bool> {
-        self.run(gate, src, &mut [], dst).map(|()| true)
-    }
 }
 
 /// Generates [`Layer`], the closed set of ops, from one list of
@@ -128,9 +119,6 @@ macro_rules! closed_set {
             }
             fn run(&self, gate: &Gate, x: &[i16], scratch: &mut [i16], y: &mut [i16]) -> Result<()> {
                 match self { $( Layer::$variant(l) => l.run(gate, x, scratch, y), )* }
-            }
-            fn run_pingpong(&self, gate: &Gate, src: &mut [i16], dst: &mut [i16]) -> Result<bool> {
-                match self { $( Layer::$variant(l) => l.run_pingpong(gate, src, dst), )* }
             }
         }
     };

@@ -7,8 +7,9 @@
 //!
 //! A style blob has the model blob's framing (magic, version, both CRCs)
 //! and a header of kind [`ModelKind::Style`]: the payload CRC of the base
-//! blob it was built for, the index of the base layer it sits beside, a
-//! name, and one layer, the adapter, whose op gives its form: `Dense` (full),
+//! blob it was built for, the index of the base layer node it sits beside,
+//! a name, and a graph of one layer node reading the whole input, the
+//! adapter, ungated or phase-gated, whose op gives its form: `Dense` (full),
 //! `Diagonal`, or `Cp` (`W_res(p) = A diag(d(p)) B^T`, the paper's choice).
 //! The adapter reads the base layer's input in the base's activation formats
 //! and writes, with identity activation, in the base layer's output formats,
@@ -26,10 +27,13 @@ pub use fixed::types::U1F15 as BlendWeight;
 
 use fixed::types::U1F15;
 
-use crate::blob::{Activation, Framed, Gating, LayerDesc, ModelKind, Section, MAX_STYLE_NAME};
+use crate::blob::{
+    Activation, Framed, GateSource, Gating, ModelKind, NodeOp, Section, Source, MAX_STYLE_NAME,
+};
 use crate::error::{Error, Result};
 use crate::fixed::gate::ONE;
-use crate::model::{macs, ram_bytes, validate_gating, STAGE};
+use crate::graph::{check_plan, check_structure};
+use crate::model::{macs, node_gating, validate_gating, STAGE};
 use crate::ops::{GatedOp, Layer};
 
 /// Handle of a style in a [`crate::Runtime`]'s bank.
@@ -78,6 +82,7 @@ impl Mix {
 #[derive(Clone, Copy, Debug)]
 pub struct Style<'a> {
     kernel: Layer<'a>,
+    gate: GateSource,
     gating: Gating,
     name: &'a str,
     base_crc: u32,
@@ -114,39 +119,39 @@ impl<'a> Style<'a> {
         else {
             return Err(Error::NotAStyle);
         };
-        let gated_experts = validate_gating(&header.gating)?;
-        let [desc]: [LayerDesc; 1] = header
-            .layers
-            .as_slice()
-            .try_into()
-            .map_err(|_| Error::UnsupportedParameter { layer: STAGE })?;
-        if desc.in_dim != header.input_dim || desc.out_dim != header.output_dim {
-            return Err(Error::DimensionMismatch { layer: 0 });
-        }
-        if desc.in_dim == 0 || desc.out_dim == 0 {
+        validate_gating(&header.gating)?;
+        check_structure(&header)?;
+        let node = match header.nodes.as_slice() {
+            [one] => one,
+            _ => return Err(Error::UnsupportedParameter { layer: STAGE }),
+        };
+        let (NodeOp::Layer(desc), [input]) = (&node.op, node.inputs.as_slice()) else {
+            return Err(Error::UnsupportedParameter { layer: 0 });
+        };
+        if input.source != Source::Input || matches!(node.gate, GateSource::Node(_)) {
             return Err(Error::UnsupportedParameter { layer: 0 });
         }
-        let want = if desc.gated { gated_experts } else { 1 };
-        if desc.experts != want {
+        if desc.experts != node_gating(&header.gating, &header.nodes, node).experts() {
             return Err(Error::GatingMismatch { layer: 0 });
         }
         if desc.activation != Activation::Identity {
             return Err(Error::UnsupportedParameter { layer: 0 });
         }
-        let kernel = Layer::bind(payload, desc, 0)?;
+        let kernel = Layer::bind(payload, *desc, 0)?;
         let empty = Section::default();
         if (header.input_stage, header.output_stage) != (empty, empty) {
             return Err(Error::UnsupportedParameter { layer: STAGE });
         }
         let name = name_str(payload, name)?;
-        if u64::from(header.ram_bytes) != ram_bytes(&header.layers) as u64
-            || u64::from(header.macs_per_frame) != macs(&header.gating, &header.layers)
-        {
+        check_plan(&header)?;
+        if u64::from(header.macs_per_frame) != macs(&header) {
             return Err(Error::HeaderInconsistent);
         }
-        kernel.check(&header.gating)?;
+        kernel.check(&node_gating(&header.gating, &header.nodes, node))?;
+        let gate = node.gate;
         Ok(Style {
             kernel,
+            gate,
             gating: header.gating,
             name,
             base_crc,
@@ -181,6 +186,12 @@ impl<'a> Style<'a> {
         &self.kernel
     }
 
+    /// Whether the adapter is phase-gated ([`GateSource::Phase`]) or not
+    /// ([`GateSource::None`]).
+    pub fn gate(&self) -> GateSource {
+        self.gate
+    }
+
     /// Gating the style was built with (the base model's).
     pub fn gating(&self) -> Gating {
         self.gating
@@ -199,7 +210,11 @@ impl<'a> Style<'a> {
 
     /// Multiply-accumulates the adapter adds to a frame.
     pub fn macs_per_frame(&self) -> u64 {
-        macs(&self.gating, core::slice::from_ref(self.kernel.desc()))
+        let active = match self.gate {
+            GateSource::Phase => self.gating.active(),
+            _ => 1,
+        };
+        Layer::macs(self.kernel.desc(), active as u64)
     }
 }
 

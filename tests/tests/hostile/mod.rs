@@ -17,14 +17,14 @@
 
 #![allow(dead_code, unused_imports)]
 
-pub use exporter::encode::{encode, frame, QKind, QLayer, QModel};
+pub use exporter::encode::{encode, frame, QKind, QLayer, QModel, Wiring};
 pub use exporter::export::export;
 pub use exporter::net::{ExpertLayer, GatingMode, Net, NetLayer};
 pub use exporter::quantise::QuantOptions;
 pub use ndarray::{Array1, Array2};
 pub use phasegate::blob::{
-    crc32, AccWidth, Activation, Gating, Header, LayerDesc, LayerOp, ModelKind, Requant, Section,
-    WeightFormat, REQUANT_RECORD_LEN,
+    crc32, AccWidth, Activation, GateSource, Gating, Header, LayerDesc, LayerOp, ModelKind, Node,
+    NodeOp, Requant, Section, Slice, Source, Span, WeightFormat, REQUANT_RECORD_LEN,
 };
 pub use phasegate::style::BlendWeight;
 pub use phasegate::{
@@ -98,7 +98,6 @@ pub fn desc(
         weights: w,
         acc,
         activation: act,
-        gated: experts > 1,
         weight_section: Section::default(),
         bias_section: Section::default(),
         requant_section: Section::default(),
@@ -129,6 +128,7 @@ pub fn hand_model() -> QModel {
                 })
                 .collect(),
             cp: None,
+            gated: d.experts > 1,
         }
     };
     let layers = vec![
@@ -144,6 +144,7 @@ pub fn hand_model() -> QModel {
             .collect(),
         output_stage: (0..5).map(|i| (0.01 * (i + 1) as f32, i as f32)).collect(),
         layers,
+        wiring: Wiring::Chain,
     }
 }
 
@@ -178,22 +179,59 @@ impl Parts {
         self
     }
 
-    /// Recomputes the RAM and MAC figures after an edit of the layers.
+    /// Layer node `i`'s descriptor.
+    pub fn layer(&mut self, i: usize) -> &mut LayerDesc {
+        layer_mut(&mut self.header, i).expect("a layer node")
+    }
+
+    /// Recomputes the arena plan (span lengths from the nodes' widths, then
+    /// offsets, with the exporter's planner) and the RAM and MAC figures
+    /// after an edit of the nodes; a graph that no longer chains keeps its
+    /// old plan.
     pub fn refigure(&mut self) -> &mut Self {
-        self.header.ram_bytes = phasegate::ram_bytes(&self.header.layers) as u32;
-        self.header.macs_per_frame =
-            phasegate::macs(&self.header.gating, &self.header.layers) as u32;
+        let h = &mut self.header;
+        h.input.len = h.input_dim;
+        for n in h.nodes.iter_mut() {
+            n.input.len = n.in_dim();
+            n.output.len = n.out_dim();
+            n.scratch.len = n.layer().map_or(0, |d| {
+                <phasegate::ops::Layer<'_> as phasegate::ops::GatedOp<'_>>::scratch(d) as u16
+            });
+            if let [one] = n.inputs.as_mut_slice() {
+                one.len = n.input.len;
+            }
+        }
+        h.output.len = h.output_dim;
+        let _ = exporter::plan::plan_arena(h);
+        h.macs_per_frame = phasegate::macs(h) as u32;
         self
     }
 
     pub fn requant_at(&mut self, layer: usize, row: usize) -> &mut [u8] {
-        let s =
-            self.header.layers[layer].requant_section.offset as usize + row * REQUANT_RECORD_LEN;
+        let s = self.layer(layer).requant_section.offset as usize + row * REQUANT_RECORD_LEN;
         &mut self.payload[s..s + REQUANT_RECORD_LEN]
     }
 
     pub fn load(&self) -> Result<(), Error> {
         Model::from_bytes(&self.blob()).map(|_| ())
+    }
+}
+
+/// The descriptor of layer node `i` (panics on a softmax gate).
+pub fn lay(h: &mut Header, i: usize) -> &mut LayerDesc {
+    layer_mut(h, i).expect("a layer node")
+}
+
+/// A copy of the descriptor of layer node `i`.
+pub fn layer_of(h: &Header, i: usize) -> LayerDesc {
+    *h.nodes[i].layer().expect("a layer node")
+}
+
+/// The descriptor of node `i`, if it is a layer.
+pub fn layer_mut(h: &mut Header, i: usize) -> Option<&mut LayerDesc> {
+    match &mut h.nodes.get_mut(i)?.op {
+        NodeOp::Layer(d) => Some(d),
+        NodeOp::Softmax(_) => None,
     }
 }
 
@@ -208,7 +246,7 @@ pub fn single_flip_error(blob: &[u8], damaged: &[u8], pos: usize) -> Error {
         0..4 => Error::BadMagic,
         4..6 => Error::UnsupportedVersion {
             found: u16::from_le_bytes([damaged[4], damaged[5]]),
-            supported: 1,
+            supported: phasegate::blob::FORMAT_VERSION,
         },
         6..8 => {
             let h = 12 + usize::from(u16::from_le_bytes([damaged[6], damaged[7]]));
@@ -311,7 +349,7 @@ pub fn refused(p: &Parts) -> Error {
 /// Frames raw header bytes with a valid CRC, as the document says.
 pub fn frame_raw(header: &[u8], payload: &[u8]) -> Vec<u8> {
     let mut out = b"PGMB".to_vec();
-    out.extend(1u16.to_le_bytes());
+    out.extend(phasegate::blob::FORMAT_VERSION.to_le_bytes());
     out.extend(u16::try_from(header.len()).unwrap().to_le_bytes());
     let crc = crc32(&out.iter().chain(header).copied().collect::<Vec<_>>());
     out.extend(crc.to_le_bytes());
@@ -443,6 +481,32 @@ pub enum Edit {
         at: usize,
         byte: u8,
     },
+    /// One of a node's spans (0 input, 1 scratch, 2 output) or, for
+    /// node 255, the model's input span.
+    Span {
+        node: usize,
+        which: u8,
+        offset: u16,
+        len: u16,
+    },
+    /// A node's first input slice, or the model's output (node 255).
+    Slice {
+        node: usize,
+        source: Option<u8>,
+        start: u16,
+        len: u16,
+    },
+    /// A node's gate source.
+    Gate {
+        node: usize,
+        source: Option<Option<u8>>,
+    },
+    /// A node turned into a softmax gate.
+    Softmax {
+        node: usize,
+        experts: u16,
+        frac: u8,
+    },
 }
 
 pub fn arb_edit() -> impl Strategy<Value = Edit> {
@@ -487,18 +551,52 @@ pub fn arb_edit() -> impl Strategy<Value = Edit> {
         (any::<u32>(), any::<u32>()).prop_map(|(ram, macs)| Edit::Figures { ram, macs }),
         (small.clone(), small).prop_map(|(input, output)| Edit::Model { input, output }),
         (any::<usize>(), any::<u8>()).prop_map(|(at, byte)| Edit::Payload { at, byte }),
+        (
+            prop_oneof![0usize..3, Just(255)],
+            0u8..3,
+            prop_oneof![0u16..64, any::<u16>()],
+            prop_oneof![0u16..32, any::<u16>()]
+        )
+            .prop_map(|(node, which, offset, len)| Edit::Span {
+                node,
+                which,
+                offset,
+                len
+            }),
+        (
+            prop_oneof![0usize..3, Just(255)],
+            proptest::option::of(0u8..4),
+            0u16..12,
+            prop_oneof![0u16..12, any::<u16>()]
+        )
+            .prop_map(|(node, source, start, len)| Edit::Slice {
+                node,
+                source,
+                start,
+                len
+            }),
+        (
+            0usize..3,
+            proptest::option::of(proptest::option::of(0u8..4))
+        )
+            .prop_map(|(node, source)| Edit::Gate { node, source }),
+        (0usize..3, 0u16..10, 0u8..17).prop_map(|(node, experts, frac)| Edit::Softmax {
+            node,
+            experts,
+            frac
+        }),
     ]
 }
 
 pub fn apply(p: &mut Parts, e: &Edit) {
-    let n = p.header.layers.len().max(1);
+    let n = p.header.nodes.len().max(1);
     match *e {
         Edit::Dim {
             layer,
             which,
             value,
         } => {
-            if let Some(l) = p.header.layers.get_mut(layer % n) {
+            if let Some(l) = layer_mut(&mut p.header, layer % n) {
                 if which == 0 {
                     l.in_dim = value;
                 } else {
@@ -507,13 +605,16 @@ pub fn apply(p: &mut Parts, e: &Edit) {
             }
         }
         Edit::Experts { layer, value } => {
-            if let Some(l) = p.header.layers.get_mut(layer % n) {
+            if let Some(l) = layer_mut(&mut p.header, layer % n) {
                 l.experts = value;
             }
         }
         Edit::Gated { layer } => {
-            if let Some(l) = p.header.layers.get_mut(layer % n) {
-                l.gated = !l.gated;
+            if let Some(node) = p.header.nodes.get_mut(layer % n) {
+                node.gate = match node.gate {
+                    GateSource::None => GateSource::Phase,
+                    _ => GateSource::None,
+                };
             }
         }
         Edit::Section {
@@ -522,7 +623,7 @@ pub fn apply(p: &mut Parts, e: &Edit) {
             offset,
             len,
         } => {
-            if let Some(l) = p.header.layers.get_mut(layer % n) {
+            if let Some(l) = layer_mut(&mut p.header, layer % n) {
                 let s = match which {
                     0 => &mut l.weight_section,
                     1 => &mut l.bias_section,
@@ -537,7 +638,7 @@ pub fn apply(p: &mut Parts, e: &Edit) {
             acc,
             elu,
         } => {
-            if let Some(l) = p.header.layers.get_mut(layer % n) {
+            if let Some(l) = layer_mut(&mut p.header, layer % n) {
                 l.weights = if weights {
                     WeightFormat::I16
                 } else {
@@ -559,6 +660,60 @@ pub fn apply(p: &mut Parts, e: &Edit) {
         Edit::Payload { at, byte } => {
             let len = p.payload.len();
             p.payload[at % len] = byte;
+        }
+        Edit::Span {
+            node,
+            which,
+            offset,
+            len,
+        } => {
+            let span = Span { offset, len };
+            match p.header.nodes.get_mut(node) {
+                None => p.header.input = span,
+                Some(x) => match which {
+                    0 => x.input = span,
+                    1 => x.scratch = span,
+                    _ => x.output = span,
+                },
+            }
+        }
+        Edit::Slice {
+            node,
+            source,
+            start,
+            len,
+        } => {
+            let slice = Slice {
+                source: source.map_or(Source::Input, Source::Node),
+                start,
+                len,
+            };
+            match p.header.nodes.get_mut(node) {
+                None => p.header.output = slice,
+                Some(x) => {
+                    if let Some(first) = x.inputs.first_mut() {
+                        *first = slice;
+                    }
+                }
+            }
+        }
+        Edit::Gate { node, source } => {
+            if let Some(x) = p.header.nodes.get_mut(node % n) {
+                x.gate = match source {
+                    None => GateSource::None,
+                    Some(None) => GateSource::Phase,
+                    Some(Some(j)) => GateSource::Node(j),
+                };
+            }
+        }
+        Edit::Softmax {
+            node,
+            experts,
+            frac,
+        } => {
+            if let Some(x) = p.header.nodes.get_mut(node % n) {
+                x.op = NodeOp::Softmax(phasegate::blob::SoftmaxDesc { experts, frac });
+            }
         }
     }
 }

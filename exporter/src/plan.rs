@@ -1,0 +1,95 @@
+//! The arena plan: an offset in one activation arena for every buffer of
+//! a graph (the quantised input, each node's concatenated input, scratch
+//! and output), such that buffers live at a common step never share an
+//! element. Lifetimes are the runtime's own ([`phasegate::graph::buffers`]),
+//! and the loader re-checks the result ([`phasegate::graph::check_plan`]).
+//!
+//! Placement is greedy first fit, as TFLM's planner does: each buffer goes
+//! to the lowest offset clear of the buffers already placed that it meets.
+//! Two orders are tried, by first use and by size (largest first), and the
+//! smaller arena wins; on the chains and small graphs here the better of
+//! the two equals the largest sum of buffers live at one step, the lower
+//! bound, which `plans_reach_the_lower_bound` checks.
+
+use phasegate::blob::{Header, Span};
+use phasegate::graph::{buffers, in_place, locate, Buffer, Role};
+
+use crate::encode::EncodeError;
+
+/// Fills in the offsets of every span of `h` (whose lengths are set),
+/// reading single-slice inputs in place, and the exact `ram_bytes`.
+pub fn plan_arena(h: &mut Header) -> Result<(), EncodeError> {
+    let bufs: Vec<Buffer> = buffers(h).into_iter().collect();
+    let by_first: Vec<usize> = (0..bufs.len()).collect();
+    let mut by_size = by_first.clone();
+    by_size.sort_by_key(|&i| (std::cmp::Reverse(bufs[i].span.len), bufs[i].first));
+    let (offsets, end) = [by_first, by_size]
+        .iter()
+        .map(|order| first_fit(&bufs, order))
+        .min_by_key(|(_, end)| *end)
+        .unwrap_or_default();
+    let too_large = || EncodeError::TooLarge("activation arena");
+    for (b, &offset) in bufs.iter().zip(&offsets) {
+        let offset = u16::try_from(offset).map_err(|_| too_large())?;
+        let node = b.role.node();
+        let span: Option<&mut Span> = match b.role {
+            Role::Input => Some(&mut h.input),
+            Role::Concat(_) => h.nodes.get_mut(usize::from(node)).map(|n| &mut n.input),
+            Role::Scratch(_) => h.nodes.get_mut(usize::from(node)).map(|n| &mut n.scratch),
+            Role::Output(_) => h.nodes.get_mut(usize::from(node)).map(|n| &mut n.output),
+        };
+        span.ok_or_else(too_large)?.offset = offset;
+    }
+    for i in 0..h.nodes.len() {
+        if in_place(&h.nodes[i]) {
+            let at = locate(h, &h.nodes[i].inputs[0]).ok_or(EncodeError::Graph(
+                phasegate::Error::GraphInvalid { node: i as u8 },
+            ))?;
+            h.nodes[i].input = at;
+        }
+    }
+    h.ram_bytes = u32::try_from(2 * end).map_err(|_| too_large())?;
+    Ok(())
+}
+
+/// Offsets of `bufs` placed in `order`, and the arena's length.
+fn first_fit(bufs: &[Buffer], order: &[usize]) -> (Vec<usize>, usize) {
+    let mut offsets = vec![usize::MAX; bufs.len()];
+    let mut end = 0;
+    for &i in order {
+        let b = &bufs[i];
+        let mut taken: Vec<(usize, usize)> = order
+            .iter()
+            .filter(|&&j| offsets[j] != usize::MAX && bufs[j].meets(b))
+            .map(|&j| (offsets[j], offsets[j] + usize::from(bufs[j].span.len)))
+            .collect();
+        taken.sort_unstable();
+        let len = usize::from(b.span.len);
+        let mut at = 0;
+        for (start, stop) in taken {
+            if at + len <= start {
+                break;
+            }
+            at = at.max(stop);
+        }
+        offsets[i] = at;
+        end = end.max(at + len);
+    }
+    (offsets, end)
+}
+
+/// The largest total length of buffers live at one step: no plan can use
+/// fewer elements.
+pub fn lower_bound(h: &Header) -> usize {
+    let bufs = buffers(h);
+    let last = bufs.iter().map(|b| b.last).max().unwrap_or(0);
+    (0..=last)
+        .map(|t| {
+            bufs.iter()
+                .filter(|b| b.first <= t && t <= b.last)
+                .map(|b| usize::from(b.span.len))
+                .sum()
+        })
+        .max()
+        .unwrap_or(0)
+}
