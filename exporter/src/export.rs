@@ -101,7 +101,11 @@ pub fn export(
     let model = Model::from_bytes(&blob).map_err(ExportError::SelfCheck)?;
     let report = ExportReport {
         format_version: phasegate::blob::FORMAT_VERSION,
-        gating: net.mode.name().to_string(),
+        gating: if net.experts() == 0 {
+            "none".to_string()
+        } else {
+            net.mode.name().to_string()
+        },
         experts: net.experts(),
         weight_format: if q.layers.iter().all(|l| l.weights == q.layers[0].weights) {
             format_name(opts.weights_of(0))

@@ -31,6 +31,12 @@ struct QuantArgs {
     /// Phase gating of the blob.
     #[arg(long, value_enum)]
     gating: Gating,
+    #[command(flatten)]
+    out: OutputArgs,
+}
+
+#[derive(clap::Args)]
+struct OutputArgs {
     /// Weight width.
     #[arg(long, default_value_t = 8, value_parser = parse_bits)]
     weight_bits: u8,
@@ -71,6 +77,19 @@ enum Command {
         weights: PathBuf,
         #[command(flatten)]
         quant: QuantArgs,
+    },
+    /// Import a graph (OMG-shaped networks and others): a JSON description
+    /// of the nodes (docs/graph-format.md) and their weights in an .npz or
+    /// .safetensors file.
+    Graph {
+        /// The JSON description.
+        #[arg(long)]
+        graph: PathBuf,
+        /// The weights (.npz or .safetensors).
+        #[arg(long)]
+        weights: PathBuf,
+        #[command(flatten)]
+        out: OutputArgs,
     },
     /// Decompose a dense model's layers by CP-ALS and write a CP blob.
     Cp(exporter::cp::cli::CpArgs),
@@ -142,15 +161,22 @@ fn load_pfnn_dir(
 fn export(
     net: &Net,
     residual: Option<exporter::control_points::Residual>,
-    q: &QuantArgs,
+    q: &OutputArgs,
 ) -> Result<()> {
     let weights = if q.weight_bits == 16 {
         WeightFormat::I16
     } else {
         WeightFormat::I8
     };
+    if !(q.input_range_sigma.is_finite() && q.input_range_sigma >= 1.0) {
+        bail!(
+            "--input-range-sigma {} must be at least 1",
+            q.input_range_sigma
+        );
+    }
     let opts = QuantOptions {
         weights,
+        input_range_sigma: q.input_range_sigma,
         ..QuantOptions::default()
     };
     let pb = spinner("calibrating and quantising");
@@ -167,7 +193,7 @@ fn export(
 
 /// Both files or neither: the report goes first, and is removed again if
 /// the blob cannot be written.
-fn write_outputs(blob: &[u8], report: &ExportReport, q: &QuantArgs) -> Result<()> {
+fn write_outputs(blob: &[u8], report: &ExportReport, q: &OutputArgs) -> Result<()> {
     if let Some(path) = &q.report {
         let json = serde_json::to_vec_pretty(report)?;
         exporter::atomic::write_atomic(path, &json)?;
@@ -240,11 +266,19 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Pfnn { weights, quant } => {
             let (net, residual) = load_pfnn_dir(&weights, quant.gating.into())?;
-            export(&net, residual, &quant)
+            export(&net, residual, &quant.out)
         }
         Command::Npz { weights, quant } => {
             let net = exporter::npz::pfnn_from_npz(&weights, quant.gating.into())?;
-            export(&net, None, &quant)
+            export(&net, None, &quant.out)
+        }
+        Command::Graph {
+            graph,
+            weights,
+            out,
+        } => {
+            let net = exporter::net::json::read_graph(&graph, &weights)?;
+            export(&net, None, &out)
         }
         Command::Cp(a) => exporter::cp::cli::cp(&a),
         Command::CpImport(a) => exporter::cp::cli::cp_import(&a),

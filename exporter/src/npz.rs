@@ -212,6 +212,7 @@ fn pfnn_from_arrays(
         ymean,
         ystd,
         layers: layers.into_iter().map(NetLayer::Dense).collect(),
+        wiring: crate::net::Wiring::Chain,
     })
 }
 
@@ -275,6 +276,7 @@ mod tests {
                 .into_iter()
                 .map(NetLayer::Dense)
                 .collect(),
+            wiring: crate::net::Wiring::Chain,
         }
     }
 

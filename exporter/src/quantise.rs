@@ -24,6 +24,8 @@ use serde::Serialize;
 
 use crate::calibrate::{calibrate, normal_inputs, Ranges};
 use crate::encode::{QKind, QLayer, QModel, Wiring};
+
+pub mod graph;
 use crate::net::{GatingMode, Net};
 use crate::ops::NetLayer;
 
@@ -569,6 +571,9 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
     }
     if net.layers.is_empty() {
         return Err(QuantError::Invalid("the network has no layers".into()));
+    }
+    if let crate::net::Wiring::Graph(g) = &net.wiring {
+        return graph::quantise_graph(net, g, opts);
     }
     let gating = gating_for(net.mode, net.experts())?;
     let wanted = net

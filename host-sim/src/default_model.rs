@@ -67,6 +67,7 @@ pub fn generate() -> Net {
         ymean,
         ystd,
         layers: layers.into_iter().map(NetLayer::Dense).collect(),
+        wiring: exporter::net::Wiring::Chain,
     }
 }
 

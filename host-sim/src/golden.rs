@@ -8,6 +8,7 @@
 //! | `default` | the embedded default model (342 -> 32 -> 32 -> 311) | dense x3 | int8 |
 //! | `dense-int16` | the same network | dense x3 | int16 |
 //! | `cp-diagonal` | a synthetic 48 -> 40 -> 40 -> 24 network | CP (rank 12), diagonal, CP (rank 6) | int8 |
+//! | `softmax-graph` | the branching proof model (`synthetic::branching_net`: gating MLP -> softmax; two encoders -> concatenation -> three softmax-gated layers -> decoder on a slice), 40 -> 10 | dense x12, softmax gate | int8 |
 //!
 //! Regenerate them all (after a deliberate change to the arithmetic) with
 //! `cargo run --release -p host-sim -- golden --write tests/golden`, or one
@@ -31,7 +32,7 @@ pub const FRAMES: usize = 64;
 /// Seed of the golden inputs.
 pub const INPUT_SEED: u64 = 0x601D_0001;
 /// Every case, by directory name.
-pub const CASES: [&str; 3] = ["default", "dense-int16", "cp-diagonal"];
+pub const CASES: [&str; 4] = ["default", "dense-int16", "cp-diagonal", "softmax-graph"];
 
 /// The float network of `case` and the options it is exported with.
 fn case_source(case: &str) -> Result<(Net, QuantOptions)> {
@@ -48,12 +49,17 @@ fn case_source(case: &str) -> Result<(Net, QuantOptions)> {
             synthetic::cp_net(0x601D_0C9D, 48, 40, 24, 12),
             QuantOptions::default(),
         ),
+        "softmax-graph" => (
+            synthetic::branching_net(0x601D_5F7A),
+            QuantOptions::default(),
+        ),
         _ => bail!("no golden case {case:?} (cases: {})", CASES.join(", ")),
     })
 }
 
 /// Writes the float source (`model.npz`: the PFNN layout for all-dense
-/// networks, the `cp-import` layout otherwise), model.blob, inputs.npy,
+/// chains, the `cp-import` layout for other chains; a graph's
+/// `model.json` description beside its `model.npz`), model.blob, inputs.npy,
 /// phases.npy, expected_q.npy and expected.npy of `case` into `dir`, all
 /// derived from fixed seeds.
 pub fn write_case(case: &str, dir: &Path) -> Result<()> {
@@ -61,7 +67,11 @@ pub fn write_case(case: &str, dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let npz = dir.join("model.npz");
     // Reload so the blob is made from exactly what the .npz holds.
-    let net = if net.layers.iter().all(|l| l.as_dense().is_some()) {
+    let net = if matches!(net.wiring, exporter::net::Wiring::Graph(_)) {
+        let json = dir.join("model.json");
+        exporter::net::json::write_graph(&net, &json, &npz)?;
+        exporter::net::json::read_graph(&json, &npz)?
+    } else if net.layers.iter().all(|l| l.as_dense().is_some()) {
         exporter::npz::pfnn_to_npz(&net, &npz)?;
         exporter::npz::pfnn_from_npz(&npz, net.mode)?
     } else {

@@ -35,6 +35,7 @@ pub use error::{Error, Result};
 pub use fixed::elu::elu_q;
 pub use fixed::gate::Gate;
 pub use fixed::phase::Phase;
+pub use fixed::softmax::MAX_LOGITS;
 pub use model::{macs, node_gating, Model, MAX_GATES, STAGE};
 pub use runtime::Runtime;
 pub use style::{Mix, Style, StyleId};

@@ -58,6 +58,7 @@ fn dense_net(seed: u64, dims: [usize; 4]) -> Net {
             NetLayer::Dense(dense_layer(&mut rng, h1, h0, 4)),
             NetLayer::Dense(dense_layer(&mut rng, out, h1, 4)),
         ],
+        wiring: exporter::net::Wiring::Chain,
     }
 }
 

@@ -51,6 +51,7 @@ fn base_pfnn(seed: u64) -> Net {
         .into_iter()
         .map(NetLayer::Dense)
         .collect(),
+        wiring: exporter::net::Wiring::Chain,
     }
 }
 

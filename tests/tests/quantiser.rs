@@ -46,6 +46,7 @@ fn tiny_hidden_rows_stay_in_q15() {
         .into_iter()
         .map(NetLayer::Dense)
         .collect(),
+        wiring: exporter::net::Wiring::Chain,
     };
     for weights in [WeightFormat::I16, WeightFormat::I8] {
         let (blob, _) = export(

@@ -769,6 +769,7 @@ mod tests {
                 }),
                 dense(rng, 3, 6),
             ],
+            wiring: crate::net::Wiring::Chain,
         }
     }
 

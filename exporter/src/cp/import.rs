@@ -254,6 +254,7 @@ pub fn net_from_arrays(arrays: &BTreeMap<String, NpArray>, mode: GatingMode) -> 
         ymean,
         ystd,
         layers,
+        wiring: crate::net::Wiring::Chain,
     })
 }
 
@@ -424,6 +425,7 @@ mod tests {
                 }),
                 cp(2, 5, 3),
             ],
+            wiring: crate::net::Wiring::Chain,
         }
     }
 

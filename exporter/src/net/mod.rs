@@ -3,19 +3,37 @@
 //! dense weights, style adapters beside it), what the float reference runs
 //! and what the one quantiser ([`crate::quantise`]) turns into a blob.
 //!
-//! Today a `Net` is a chain of gated ops ([`NetLayer`]) sharing the phase
-//! gate, with ELU after every layer but the last, plus residual adapters
-//! beside a layer; that is all blob format 1 can describe.
+//! A `Net` holds its layers ([`NetLayer`]) and how they are wired
+//! ([`Wiring`]): a chain sharing the phase gate with ELU after every layer
+//! but the last (PFNN, and every network the PFNN-shaped importers make,
+//! plus residual adapters beside a layer), or a graph of layer and softmax
+//! gate nodes whose inputs are slices of the input and of earlier nodes
+//! (OMG-shaped networks, imported from a JSON description, [`json`]).
 //!
 //! Everything is `f64`.
 
 pub mod gating;
+pub mod graph;
+pub mod json;
 pub mod pfnn;
 
 use ndarray::{Array1, Array2, Axis};
 
 pub use crate::ops::{CpLayer, DiagLayer, ExpertLayer, NetLayer};
 pub use gating::{wrap_phase, GatingMode, ParseGatingModeError};
+pub use graph::{Graph, GraphNode, GraphOp, GraphTrace};
+pub use phasegate::blob::{GateSource, Slice, Source};
+
+/// How a [`Net`]'s layers are connected.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub enum Wiring {
+    /// Layer `l` reads layer `l - 1`'s output (layer 0 the normalised
+    /// input), every layer phase-gated, ELU after all but the last.
+    #[default]
+    Chain,
+    /// Any graph of layer and softmax gate nodes.
+    Graph(Graph),
+}
 
 /// Exponential linear unit: `x` for `x > 0`, `exp(x) - 1` otherwise.
 pub fn elu(x: f64) -> f64 {
@@ -65,8 +83,10 @@ pub struct Net {
     pub ymean: Array1<f64>,
     /// Output de-normalisation.
     pub ystd: Array1<f64>,
-    /// Layers; ELU after all but the last.
+    /// Layers; for a chain, ELU after all but the last.
     pub layers: Vec<NetLayer>,
+    /// How the layers are connected.
+    pub wiring: Wiring,
 }
 
 impl Net {
@@ -80,9 +100,12 @@ impl Net {
         self.ymean.len()
     }
 
-    /// Experts of the gated layers.
+    /// Experts of the phase-gated layers (0 for a graph without one).
     pub fn experts(&self) -> usize {
-        self.layers.first().map_or(0, NetLayer::experts)
+        match &self.wiring {
+            Wiring::Chain => self.layers.first().map_or(0, NetLayer::experts),
+            Wiring::Graph(g) => g.phase_experts(&self.layers),
+        }
     }
 
     /// The gate at `phase_rad`.
@@ -92,14 +115,19 @@ impl Net {
 
     /// Raw model units in and out.
     pub fn forward(&self, x_raw: &[f64], phase_rad: f64) -> Vec<f64> {
-        self.forward_trace(x_raw, phase_rad, &[]).y
+        match &self.wiring {
+            Wiring::Chain => self.forward_trace(x_raw, phase_rad, &[]).y,
+            Wiring::Graph(g) => self.graph_trace(g, x_raw, phase_rad).y,
+        }
     }
 
-    /// The forward pass with `adapters`, each with its mixing weight: the
-    /// adapters of layer `l` add `sum_s w_s op_s(x_l)` to its pre-activation.
+    /// The forward pass of a chain with `adapters`, each with its mixing
+    /// weight: the adapters of layer `l` add `sum_s w_s op_s(x_l)` to its
+    /// pre-activation.
     ///
     /// # Panics
-    /// If `x_raw` has the wrong length.
+    /// If `x_raw` has the wrong length, or the net is a graph (see
+    /// [`Net::graph_trace`]).
     pub fn forward_trace(
         &self,
         x_raw: &[f64],
@@ -112,6 +140,10 @@ impl Net {
             "Net input has {} values, the model expects {}",
             x_raw.len(),
             self.input_dim()
+        );
+        assert!(
+            self.wiring == Wiring::Chain,
+            "forward_trace runs chains; graphs run with graph_trace"
         );
         let gate = self.gate(phase_rad);
         let mut h = (&Array1::from(x_raw.to_vec()) - &self.xmean) / &self.xstd;
@@ -152,7 +184,13 @@ impl Net {
         let rows: Vec<Array1<f64>> = xs
             .iter()
             .zip(phases)
-            .map(|(x, &p)| Array1::from(self.forward_trace(x, p, adapters).y))
+            .map(|(x, &p)| {
+                Array1::from(if adapters.is_empty() {
+                    self.forward(x, p)
+                } else {
+                    self.forward_trace(x, p, adapters).y
+                })
+            })
             .collect();
         let views: Vec<_> = rows.iter().map(|r| r.view()).collect();
         ndarray::stack(Axis(0), &views).unwrap_or_else(|_| Array2::zeros((0, self.output_dim())))

@@ -51,6 +51,7 @@ impl Net {
             ymean: stats(&t.ymean),
             ystd: stats(&t.ystd),
             layers: layers.into_iter().map(NetLayer::Dense).collect(),
+            wiring: crate::net::Wiring::Chain,
         };
         (net, residual)
     }

@@ -67,6 +67,7 @@ pub fn cp_net(seed: u64, input: usize, hidden: usize, output: usize, rank: usize
             }),
             NetLayer::Cp(cp_layer(&mut rng, output, hidden, (rank / 2).max(1))),
         ],
+        wiring: exporter::net::Wiring::Chain,
     }
 }
 
@@ -85,6 +86,7 @@ pub fn pfnn_base(seed: u64, input: usize, hidden: usize, output: usize) -> Net {
             NetLayer::Dense(dense_layer(&mut rng, hidden, hidden)),
             NetLayer::Dense(dense_layer(&mut rng, output, hidden)),
         ],
+        wiring: exporter::net::Wiring::Chain,
     }
 }
 
@@ -163,4 +165,122 @@ pub fn default_model_style_for_crc(base_crc: u32) -> Result<Vec<u8>> {
         "other-base",
         Some(base_crc),
     )
+}
+
+/// Experts of the branching proof model's softmax gate.
+pub const BRANCHING_EXPERTS: usize = 4;
+
+/// The branching proof model (issue 9, OMG's new parts on random weights),
+/// 40 inputs and 10 outputs:
+///
+/// ```text
+/// input[0..8]   -> gate1 (16, ELU) -> gate2 (16, ELU) -> gate3 (4) -> softmax alpha
+/// input[8..28]  -> pose1 (24, ELU) -> pose2 (24, ELU) --+
+/// input[28..40] -> cost1 (16, ELU) -> cost2 (16, ELU) --+-> [pose2, cost2] (40)
+///   -> moe1 (32, ELU) -> moe2 (32, ELU) -> moe3 (24, ELU), each with 4 experts
+///      blended by alpha
+///   -> moe3[0..16] -> dec1 (16, ELU) -> dec2 (10): the output
+/// ```
+pub fn branching_net(seed: u64) -> Net {
+    use exporter::net::{GateSource, Graph, GraphNode, GraphOp, Slice, Source, Wiring};
+    struct Builder {
+        rng: ChaCha8Rng,
+        layers: Vec<NetLayer>,
+        nodes: Vec<GraphNode>,
+    }
+    impl Builder {
+        /// A dense node of `experts` experts (close to each other, as
+        /// trained experts are) and `out` rows; returns it as a source.
+        fn dense(
+            &mut self,
+            name: &str,
+            inputs: Vec<Slice>,
+            out: usize,
+            (experts, gate): (usize, GateSource),
+            elu: bool,
+        ) -> Source {
+            let rng = &mut self.rng;
+            let inp: usize = inputs.iter().map(|s| usize::from(s.len)).sum();
+            let sd = 1.3 / (inp as f64).sqrt();
+            let base = Array2::from_shape_fn((out, inp), |_| normal(rng) * sd);
+            self.layers.push(NetLayer::Dense(ExpertLayer {
+                w: (0..experts)
+                    .map(|_| base.mapv(|v| v + 0.5 * sd * normal(rng)))
+                    .collect(),
+                b: (0..experts)
+                    .map(|_| Array1::from_shape_fn(out, |_| 0.1 * normal(rng)))
+                    .collect(),
+            }));
+            self.push(
+                name,
+                GraphOp::Layer {
+                    layer: self.layers.len() - 1,
+                    elu,
+                },
+                inputs,
+                gate,
+            )
+        }
+
+        fn push(
+            &mut self,
+            name: &str,
+            op: GraphOp,
+            inputs: Vec<Slice>,
+            gate: GateSource,
+        ) -> Source {
+            self.nodes.push(GraphNode {
+                name: name.to_string(),
+                op,
+                inputs,
+                gate,
+            });
+            Source::Node(self.nodes.len() as u8 - 1)
+        }
+    }
+    let s = |source, start: u16, len: u16| Slice { source, start, len };
+    let mut b = Builder {
+        rng: ChaCha8Rng::seed_from_u64(seed),
+        layers: Vec::new(),
+        nodes: Vec::new(),
+    };
+    let one = (1, GateSource::None);
+    let k = BRANCHING_EXPERTS;
+    let g1 = b.dense("gate1", vec![s(Source::Input, 0, 8)], 16, one, true);
+    let g2 = b.dense("gate2", vec![s(g1, 0, 16)], 16, one, true);
+    let g3 = b.dense("gate3", vec![s(g2, 0, 16)], k, one, false);
+    let p1 = b.dense("pose1", vec![s(Source::Input, 8, 20)], 24, one, true);
+    let p2 = b.dense("pose2", vec![s(p1, 0, 24)], 24, one, true);
+    let c1 = b.dense("cost1", vec![s(Source::Input, 28, 12)], 16, one, true);
+    let c2 = b.dense("cost2", vec![s(c1, 0, 16)], 16, one, true);
+    // The softmax gate after the encoders: the branches interleave and the
+    // logits stay live across them.
+    let Source::Node(a) = b.push(
+        "alpha",
+        GraphOp::Softmax,
+        vec![s(g3, 0, k as u16)],
+        GateSource::None,
+    ) else {
+        unreachable!("push returns a node")
+    };
+    let gated = (k, GateSource::Node(a));
+    let cat = vec![s(p2, 0, 24), s(c2, 0, 16)];
+    let m1 = b.dense("moe1", cat, 32, gated, true);
+    let m2 = b.dense("moe2", vec![s(m1, 0, 32)], 32, gated, true);
+    let m3 = b.dense("moe3", vec![s(m2, 0, 32)], 24, gated, true);
+    let d1 = b.dense("dec1", vec![s(m3, 0, 16)], 16, one, true);
+    let d2 = b.dense("dec2", vec![s(d1, 0, 16)], 10, one, false);
+    let rng = &mut b.rng;
+    Net {
+        mode: GatingMode::Cubic,
+        xmean: Array1::from_shape_fn(40, |_| normal(rng)),
+        xstd: Array1::from_shape_fn(40, |_| rng.gen_range(0.2..3.0)),
+        ymean: Array1::from_shape_fn(10, |_| 3.0 * normal(rng)),
+        ystd: Array1::from_shape_fn(10, |_| rng.gen_range(0.1..10.0)),
+        layers: b.layers,
+        wiring: Wiring::Graph(Graph {
+            nodes: b.nodes,
+            output: s(d2, 0, 10),
+        }),
+    }
 }

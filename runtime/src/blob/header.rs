@@ -32,6 +32,9 @@ pub enum ModelKind {
         /// The style's name, UTF-8, at most [`MAX_STYLE_NAME`] bytes.
         name: Section,
     },
+    /// Any other graph (OMG-shaped networks and the like): a network the
+    /// locomotion controller does not drive.
+    Graph,
 }
 
 /// Longest style name, bytes.

@@ -69,6 +69,7 @@ pub fn float_net(seed: u64) -> Net {
         .into_iter()
         .map(NetLayer::Dense)
         .collect(),
+        wiring: exporter::net::Wiring::Chain,
     }
 }
 

@@ -1,0 +1,229 @@
+//! The quantiser's format policy for graphs ([`Wiring::Graph`]): the same
+//! per-op hooks ([`NetLayer::quantise`]) and encoder as chains, with formats
+//! chosen per node from calibration:
+//!
+//! * the normalised input columns at Q`input_frac`, as for chains;
+//! * every layer row at a power of two, as fine as its calibrated maximum
+//!   (times the headroom) allows, at most Q15 (ELU reads it; a row feeding
+//!   several nodes needs one format, so the chain's joint choice with its
+//!   one consumer does not apply);
+//! * every logit row of a softmax gate at the coarsest format among them,
+//!   so the gate compares integers of one scale (the loader checks it);
+//! * each node's input columns at its producers' row formats, the output
+//!   stage undoing the output rows' formats.
+//!
+//! Calibration runs the float graph on the quantiser's usual inputs (normal
+//! around the normalisation means) and phases.
+
+use std::collections::BTreeMap;
+
+use ndarray::Array1;
+use phasegate::blob::{Activation, GateSource, Gating, ModelKind, Slice, SoftmaxDesc, Source};
+
+use super::{
+    frac_for, gating_for, output_stage_records, LayerSpec, QuantError, QuantLayerReport,
+    QuantOptions, Quantised,
+};
+use crate::calibrate::{normal_inputs, Ranges};
+use crate::encode::{QKind, QModel, QNode, QNodeOp, Wiring as QWiring};
+use crate::net::{Graph, GraphOp, Net, NetLayer};
+
+/// What calibration saw at one node.
+#[derive(Clone, Debug, Default)]
+struct NodeStats {
+    /// Max |pre-activation| per row.
+    rows: Vec<f64>,
+    /// Mean square per input column.
+    input_ms: Vec<f64>,
+    /// Max |middle component| (CP).
+    mid_max: Option<Vec<f64>>,
+    /// Mean square per middle component (CP).
+    mid_ms: Option<Vec<f64>>,
+}
+
+fn max_into(acc: &mut Vec<f64>, v: &Array1<f64>) {
+    acc.resize(v.len(), 0.0);
+    for (a, x) in acc.iter_mut().zip(v) {
+        *a = a.max(x.abs());
+    }
+}
+
+fn ms_into(acc: &mut Vec<f64>, v: &Array1<f64>, n: f64) {
+    acc.resize(v.len(), 0.0);
+    for (a, x) in acc.iter_mut().zip(v) {
+        *a += x * x / n;
+    }
+}
+
+fn calibrate(net: &Net, g: &Graph, opts: &QuantOptions) -> Vec<NodeStats> {
+    let wanted = net
+        .layers
+        .iter()
+        .map(NetLayer::calibration_samples)
+        .fold(opts.calibration_samples, usize::max);
+    let samples = normal_inputs(
+        &net.xmean.to_vec(),
+        &net.xstd.to_vec(),
+        wanted,
+        opts.calibration_scale,
+        opts.seed,
+    );
+    let n = samples.inputs.len().max(1) as f64;
+    let mut stats = vec![NodeStats::default(); g.nodes.len()];
+    for (x, &p) in samples.inputs.iter().zip(&samples.phases) {
+        let t = net.graph_trace(g, x, p);
+        for (i, s) in stats.iter_mut().enumerate() {
+            max_into(&mut s.rows, &t.pre[i]);
+            ms_into(&mut s.input_ms, &t.inputs[i], n);
+            if let Some(m) = &t.mids[i] {
+                max_into(s.mid_max.get_or_insert_with(Vec::new), m);
+                ms_into(s.mid_ms.get_or_insert_with(Vec::new), m, n);
+            }
+        }
+    }
+    stats
+}
+
+/// The scales (integer units per real unit) of `s`'s elements.
+fn scales_of<'a>(input: &'a [f64], rows: &'a [Vec<f64>], s: &Slice) -> &'a [f64] {
+    let v = match s.source {
+        Source::Input => input,
+        Source::Node(j) => &rows[usize::from(j)],
+    };
+    let a = usize::from(s.start);
+    &v[a..a + usize::from(s.len)]
+}
+
+/// Quantises a graph net: see the module documentation.
+pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quantised, QuantError> {
+    let phase_experts = g.phase_experts(&net.layers);
+    let gating = if phase_experts > 0 {
+        gating_for(net.mode, phase_experts)?
+    } else {
+        Gating::Single
+    };
+    let stats = calibrate(net, g, opts);
+    let input_frac = frac_for(opts.input_range_sigma, 1.0, 15);
+    let input_scales = vec![f64::from(1u32 << input_frac); net.input_dim()];
+    // Row formats: each row as fine as its range allows, then the logits of
+    // each softmax gate brought to their coarsest.
+    let mut fracs: Vec<Vec<u8>> = stats
+        .iter()
+        .map(|s| {
+            s.rows
+                .iter()
+                .map(|&m| frac_for(m, opts.headroom, 15))
+                .collect()
+        })
+        .collect();
+    let mut softmax_frac = BTreeMap::new();
+    for (i, n) in g.nodes.iter().enumerate() {
+        if n.op != GraphOp::Softmax {
+            continue;
+        }
+        let rows = |s: &Slice| match s.source {
+            Source::Node(j) => Ok((
+                usize::from(j),
+                usize::from(s.start)..usize::from(s.start + s.len),
+            )),
+            Source::Input => Err(QuantError::Invalid(format!(
+                "node {:?}: softmax logits must come from layer nodes, not the input",
+                n.name
+            ))),
+        };
+        let mut frac = 15u8;
+        for s in &n.inputs {
+            let (j, r) = rows(s)?;
+            frac = fracs[j][r].iter().copied().fold(frac, u8::min);
+        }
+        for s in &n.inputs {
+            let (j, r) = rows(s)?;
+            fracs[j][r].iter_mut().for_each(|f| *f = frac);
+        }
+        softmax_frac.insert(i, frac);
+    }
+    let scales: Vec<Vec<f64>> = fracs
+        .iter()
+        .map(|f| f.iter().map(|&b| f64::from(1u32 << b)).collect())
+        .collect();
+
+    let mut layers = Vec::new();
+    let mut reports = Vec::new();
+    let mut nodes = Vec::new();
+    for (i, n) in g.nodes.iter().enumerate() {
+        let op = match &n.op {
+            GraphOp::Softmax => QNodeOp::Softmax(SoftmaxDesc {
+                experts: n.inputs.iter().map(|s| s.len).sum(),
+                frac: softmax_frac[&i],
+            }),
+            GraphOp::Layer { layer, elu } => {
+                let l = &net.layers[*layer];
+                let in_scales: Vec<f64> = n
+                    .inputs
+                    .iter()
+                    .flat_map(|s| scales_of(&input_scales, &scales, s).iter().copied())
+                    .collect();
+                let node_gating = match n.gate {
+                    GateSource::None => Gating::Single,
+                    GateSource::Phase => gating,
+                    GateSource::Node(_) => Gating::Softmax {
+                        experts: l.experts() as u16,
+                    },
+                };
+                let spec = LayerSpec {
+                    index: i,
+                    in_scales: &in_scales,
+                    targets: &scales[i],
+                    fracs: &fracs[i],
+                    activation: if *elu {
+                        Activation::Elu
+                    } else {
+                        Activation::Identity
+                    },
+                    gated: n.gate != GateSource::None,
+                    format: opts.weights_of(i),
+                    gating: node_gating,
+                    mid_max: stats[i].mid_max.as_deref(),
+                    in_power: Some(&stats[i].input_ms),
+                    mid_power: stats[i].mid_ms.as_deref(),
+                    headroom: opts.headroom,
+                };
+                let (ql, rep) = l.quantise(&spec)?;
+                reports.push(QuantLayerReport {
+                    calibrated_max: stats[i].rows.iter().copied().fold(0.0, f64::max),
+                    ..rep
+                });
+                layers.push(ql);
+                QNodeOp::Layer(layers.len() - 1)
+            }
+        };
+        nodes.push(QNode {
+            op,
+            inputs: n.inputs.clone(),
+            gate: n.gate,
+        });
+    }
+    let out_scales = scales_of(&input_scales, &scales, &g.output);
+    Ok(Quantised {
+        model: QModel {
+            kind: QKind::Model(ModelKind::Graph),
+            gating,
+            input_stage: net
+                .xmean
+                .iter()
+                .zip(&net.xstd)
+                .zip(&input_scales)
+                .map(|((&m, &sd), &u)| (m as f32, (u / sd) as f32))
+                .collect(),
+            output_stage: output_stage_records(out_scales, &net.ystd, &net.ymean),
+            layers,
+            wiring: QWiring::Graph {
+                nodes,
+                output: g.output,
+            },
+        },
+        layers: reports,
+        ranges: Ranges::default(),
+        input_frac,
+    })
+}
