@@ -65,7 +65,7 @@ pub struct Runtime<'a, const A: usize, const S: usize = 0, const N: usize = 0> {
     model: Model<'a>,
     styles: heapless::Vec<Style<'a>, N>,
     mix: Mix,
-    arena: [i16; A],
+    arena: Arena<A>,
     scratch: [i16; S],
     clipped: u32,
 }
@@ -91,7 +91,7 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
             model,
             styles: heapless::Vec::new(),
             mix: Mix::Base,
-            arena: [0; A],
+            arena: Arena([0; A]),
             scratch: [0; S],
             clipped: 0,
         })
@@ -188,7 +188,7 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
     /// output stage.
     pub fn run_quantised(&mut self, phase: Phase, input_q: &[i16]) -> Result<&[i16]> {
         check_len(self.model.input_dim(), input_q.len())?;
-        let dst = span_mut(&mut self.arena, self.model.header().input)?;
+        let dst = span_mut(&mut self.arena.0, self.model.header().input)?;
         dst.copy_from_slice(input_q);
         self.forward(phase)?;
         self.output()
@@ -199,7 +199,7 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
     /// runs the network, writes de-quantised outputs (model units) to `output`.
     pub fn run(&mut self, phase: Phase, input: &[f32], output: &mut [f32]) -> Result<()> {
         check_len(self.model.output_dim(), output.len())?;
-        let dst = span_mut(&mut self.arena, self.model.header().input)?;
+        let dst = span_mut(&mut self.arena.0, self.model.header().input)?;
         self.clipped = quantise_into(&self.model, input, dst)?;
         self.forward(phase)?;
         dequantise_into(&self.model, self.output()?, output)
@@ -229,8 +229,9 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
     fn output(&self) -> Result<&[i16]> {
         let h = self.model.header();
         let s = locate(h, &h.output).ok_or(Error::GraphInvalid { node: STAGE_NODE })?;
-        let cap = self.arena.len();
+        let cap = self.arena.0.len();
         self.arena
+            .0
             .get(usize::from(s.offset)..s.end() as usize)
             .ok_or(buffer_error(s.end() as usize, cap))
     }
@@ -253,14 +254,14 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
                         offset: at as u16,
                         len: src.len,
                     };
-                    let (from, to, _) = split(&mut self.arena, src, dst, Span::default())?;
+                    let (from, to, _) = split(&mut self.arena.0, src, dst, Span::default())?;
                     to.copy_from_slice(from);
                     at += usize::from(src.len);
                 }
             }
             let layer = match &node.op {
                 NodeOp::Softmax(s) => {
-                    let logits = span_mut(&mut self.arena, node.input)?;
+                    let logits = span_mut(&mut self.arena.0, node.input)?;
                     let slot = gate_slot(&h.nodes, i as u8);
                     if let Some(g) = gates.get_mut(slot) {
                         *g = Gate::softmax(logits, s.frac)?;
@@ -280,7 +281,7 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
                     .copied()
                     .unwrap_or(Gate::SINGLE),
             };
-            let (x, scratch, y) = split(&mut self.arena, node.input, node.scratch, node.output)?;
+            let (x, scratch, y) = split(&mut self.arena.0, node.input, node.scratch, node.output)?;
             let styled = adapters(&self.styles, &weights, i, &phase_gate, x, &mut self.scratch)?;
             if !styled {
                 layer.run(&gate, x, scratch, y)?;
@@ -306,6 +307,12 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
         Ok(())
     }
 }
+
+/// The activation arena: word-aligned for kernels that load two i16 at a
+/// time, and 8-aligned so that a runtime's size grows with `A` by exactly
+/// `2 A` rounded up to 8 bytes.
+#[repr(C, align(8))]
+struct Arena<const A: usize>([i16; A]);
 
 /// Node index of the model's output in errors.
 const STAGE_NODE: u8 = crate::graph::IO;

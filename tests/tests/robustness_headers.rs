@@ -490,10 +490,10 @@ fn headers_that_do_not_decode() {
     malformed(&[]);
     malformed(&header[..header.len() - 1]);
     malformed(&header[..3]);
-    // Unknown enum variants: kind (byte 0; 0-2 are taken), gating (byte 1;
+    // Unknown enum variants: kind (byte 0; 0-3 are taken), gating (byte 1;
     // 0-4 are taken).
     assert_eq!(header[..3], [0x00, 0x03, 0x05]);
-    for (at, v) in [(0, 3u8), (0, 0x7f), (1, 5), (1, 0x80)] {
+    for (at, v) in [(0, 4u8), (0, 0x7f), (1, 5), (1, 0x80)] {
         let mut h = header.clone();
         h[at] = v;
         malformed(&h);

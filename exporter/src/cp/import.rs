@@ -84,6 +84,39 @@ pub fn parse_safetensors(bytes: &[u8]) -> Result<BTreeMap<String, NpArray>> {
     Ok(out)
 }
 
+/// Writes f32 arrays as a `.safetensors` file (the layout
+/// `safetensors.torch.save_file` writes), atomically.
+pub fn write_safetensors(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> Result<()> {
+    let bytes: Vec<(String, Vec<u8>, Vec<usize>)> = arrays
+        .iter()
+        .map(|(name, shape, data)| {
+            (
+                name.to_string(),
+                data.iter().flat_map(|v| v.to_le_bytes()).collect(),
+                shape.iter().map(|&d| d as usize).collect(),
+            )
+        })
+        .collect();
+    let views = bytes
+        .iter()
+        .map(|(name, data, shape)| {
+            safetensors::tensor::TensorView::new(Dtype::F32, shape.clone(), data)
+                .map(|v| (name.clone(), v))
+                .map_err(|e| anyhow!("tensor {name}: {e}"))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let out = safetensors::serialize(views, None).map_err(|e| anyhow!("{e}"))?;
+    crate::atomic::write_atomic(path, &out)
+}
+
+/// Writes `.npz` or `.safetensors` (by extension).
+pub fn write_arrays(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> Result<()> {
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("safetensors") => write_safetensors(path, arrays),
+        _ => crate::npz::write_npz(path, arrays),
+    }
+}
+
 /// Reads `.npz` or `.safetensors` (by extension).
 pub fn read_arrays(path: &Path) -> Result<BTreeMap<String, NpArray>> {
     match path.extension().and_then(|e| e.to_str()) {

@@ -219,7 +219,7 @@ pub fn net_from_file(file: &GraphFile, arrays: &BTreeMap<String, NpArray>) -> Re
     };
     let mut names: BTreeMap<&str, (u8, usize)> = BTreeMap::new();
     let mut layers = Vec::new();
-    let mut nodes = Vec::new();
+    let mut nodes: Vec<GraphNode> = Vec::new();
     for (i, n) in file.nodes.iter().enumerate() {
         let ctx = || format!("node {i} ({:?})", n.name);
         if n.name == "input" || names.contains_key(n.name.as_str()) {
@@ -234,6 +234,13 @@ pub fn net_from_file(file: &GraphFile, arrays: &BTreeMap<String, NpArray>) -> Re
             .map(|s| parse_slice(s, &names, file.input_dim))
             .collect::<Result<Vec<_>>>()
             .with_context(ctx)?;
+        for s in &inputs {
+            if let Source::Node(j) = s.source {
+                if nodes[usize::from(j)].op == GraphOp::Softmax {
+                    bail!("{}: a softmax gate is a gate, not an input", ctx());
+                }
+            }
+        }
         let in_dim: usize = inputs.iter().map(|s| usize::from(s.len)).sum();
         let gate = match n.gate.as_deref() {
             None => GateSource::None,
@@ -324,15 +331,6 @@ pub fn net_from_file(file: &GraphFile, arrays: &BTreeMap<String, NpArray>) -> Re
             bail!("output: a softmax gate has no output vector");
         }
     }
-    for n in &nodes {
-        for s in &n.inputs {
-            if let Source::Node(j) = s.source {
-                if nodes[usize::from(j)].op == GraphOp::Softmax {
-                    bail!("node {:?}: a softmax gate is a gate, not an input", n.name);
-                }
-            }
-        }
-    }
     let out_dim = usize::from(output.len);
     let (xmean, xstd, ymean, ystd) = match &file.normalisation {
         None => (
@@ -390,10 +388,11 @@ fn slice_text(g: &Graph, s: &Slice, width: usize) -> String {
     }
 }
 
-/// Writes a graph net as a description (`json`) and an `.npz` of its
-/// weights (`"<node>.weight"`, `"<node>.bias"`, and the normalisation as
-/// `x_mean`, `x_std`, `y_mean`, `y_std`), which [`read_graph`] reads back
-/// to the same net.
+/// Writes a graph net as a description (`json`) and its weights as f32
+/// (`.npz`, or `.safetensors` by extension: `"<node>.weight"`,
+/// `"<node>.bias"`, and the normalisation as `x_mean`, `x_std`, `y_mean`,
+/// `y_std`), which [`read_graph`] reads back to the same net up to the
+/// f32 rounding of the weights.
 pub fn write_graph(net: &Net, json: &Path, weights: &Path) -> Result<()> {
     let Wiring::Graph(g) = &net.wiring else {
         bail!("write_graph writes graphs; chains have their own .npz layouts");
@@ -501,7 +500,7 @@ pub fn write_graph(net: &Net, json: &Path, weights: &Path) -> Result<()> {
         .iter()
         .map(|(n, s, d)| (n.as_str(), s.clone(), d.clone()))
         .collect();
-    crate::npz::write_npz(weights, &refs)?;
+    crate::cp::import::write_arrays(weights, &refs)?;
     let text = serde_json::to_string_pretty(&file)?;
     crate::atomic::write_atomic(json, format!("{text}\n").as_bytes())?;
     Ok(())
