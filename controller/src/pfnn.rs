@@ -9,13 +9,13 @@ use crate::locomotion::{Locomotion, Network};
 use crate::pose::Pose;
 
 /// A PFNN locomotion controller: a network (on the device, the fixed-point
-/// [`Runtime`], whose buffers hold `W` elements each, at least the widest
-/// layer: 512 for the published PFNN) and the loop's state, all in one
+/// [`Runtime`], whose arena holds `W` elements, at least the blob's plan:
+/// 1,024 for the published PFNN) and the loop's state, all in one
 /// statically sized value. Nothing is allocated; put it in a `static` or on
 /// a large enough stack.
 ///
 /// ```text
-/// let mut ctl: PfnnController<Runtime<'_, 512>> =
+/// let mut ctl: PfnnController<Runtime<'_, 1024>> =
 ///     PfnnController::from_model(Model::from_bytes(BLOB)?)?;
 /// loop {
 ///     let pose = ctl.step(&Command::moving([0.0, 2.5], Gait::Walk))?;
@@ -150,7 +150,7 @@ mod tests {
     /// The embedded default model of host-sim (random weights, PFNN-shaped).
     const BLOB: &[u8] = include_bytes!("../../tests/golden/default/model.blob");
 
-    fn controller() -> PfnnController<Runtime<'static, 512>> {
+    fn controller() -> PfnnController<Runtime<'static, 1024>> {
         PfnnController::from_model(Model::from_bytes(BLOB).unwrap()).unwrap()
     }
 
@@ -247,11 +247,11 @@ mod tests {
     #[test]
     fn refuses_a_model_of_the_wrong_shape_and_reports_its_ram() {
         let (all, state) = (
-            PfnnController::<Runtime<'static, 512>>::RAM_BYTES,
-            PfnnController::<Runtime<'static, 512>>::STATE_RAM_BYTES,
+            PfnnController::<Runtime<'static, 1024>>::RAM_BYTES,
+            PfnnController::<Runtime<'static, 1024>>::STATE_RAM_BYTES,
         );
         println!("controller RAM: {all} bytes, of which loop state {state}");
-        assert!(all >= state + Runtime::<'static, 512>::CAPACITY_BYTES);
+        assert!(all >= state + Runtime::<'static, 1024>::CAPACITY_BYTES);
         // Too small buffers are refused, not overrun.
         let m = Model::from_bytes(BLOB).unwrap();
         assert!(matches!(

@@ -298,6 +298,7 @@ fn postcard_encodings_match_the_document() {
     // Enums: varint variant index, then the variant's fields.
     assert_eq!(enc(&ModelKind::Pfnn), [0x00]);
     assert_eq!(enc(&ModelKind::Mlp), [0x01]);
+    assert_eq!(enc(&ModelKind::Graph), [0x03]);
     assert_eq!(enc(&Gating::Single), [0x00]);
     assert_eq!(enc(&Gating::Constant { tables: 50 }), [0x01, 0x32]);
     assert_eq!(enc(&Gating::Linear { tables: 10 }), [0x02, 0x0a]);
@@ -1061,6 +1062,7 @@ mod spec {
                     layer: self.byte()?, // u8: one raw byte, not a varint
                     name: self.section()?,
                 },
+                3 => ModelKind::Graph,
                 _ => return None,
             };
             let gating = match self.tag()? {
@@ -1407,6 +1409,7 @@ fn arb_header() -> impl Strategy<Value = Header> {
         prop_oneof![
             Just(ModelKind::Pfnn),
             Just(ModelKind::Mlp),
+            Just(ModelKind::Graph),
             (any::<u32>(), any::<u8>(), arb_section()).prop_map(|(base_crc, layer, name)| {
                 ModelKind::Style {
                     base_crc,
