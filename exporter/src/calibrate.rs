@@ -62,7 +62,8 @@ impl Ranges {
     }
 }
 
-fn ms_into(acc: &mut Vec<f64>, v: &Array1<f64>, n: f64) {
+/// Adds `v_i^2 / n` to `acc_i` (grown to `v`'s length).
+pub(crate) fn ms_into(acc: &mut Vec<f64>, v: &Array1<f64>, n: f64) {
     if acc.len() < v.len() {
         acc.resize(v.len(), 0.0);
     }
@@ -71,13 +72,31 @@ fn ms_into(acc: &mut Vec<f64>, v: &Array1<f64>, n: f64) {
     }
 }
 
-fn max_into(acc: &mut Vec<f64>, v: &Array1<f64>) {
+/// Raises `acc_i` to `|v_i|` (grown to `v`'s length).
+pub(crate) fn max_into(acc: &mut Vec<f64>, v: &Array1<f64>) {
     if acc.len() < v.len() {
         acc.resize(v.len(), 0.0);
     }
     for (m, x) in acc.iter_mut().zip(v) {
         *m = m.max(x.abs());
     }
+}
+
+/// The calibration inputs of `net` under `opts`: as many normal samples as
+/// its most demanding op needs ([`crate::net::NetLayer::calibration_samples`]).
+pub fn calibration_inputs(net: &Net, opts: &crate::quantise::QuantOptions) -> Samples {
+    let wanted = net
+        .layers
+        .iter()
+        .map(crate::net::NetLayer::calibration_samples)
+        .fold(opts.calibration_samples, usize::max);
+    normal_inputs(
+        &net.xmean.to_vec(),
+        &net.xstd.to_vec(),
+        wanted,
+        opts.calibration_scale,
+        opts.seed,
+    )
 }
 
 /// Runs `net` (with `adapters` at their mixing weights) on every sample

@@ -8,7 +8,7 @@
 //! to the lowest offset clear of the buffers already placed that it meets.
 //! Five orders are tried (by first use; by size; by lifetime; by size times
 //! lifetime; by last use), then, while none reaches the lower bound, up to
-//! [`SHUFFLES`] seeded shuffles; the smallest arena wins. No plan can use
+//! 2,000 seeded shuffles; the smallest arena wins. No plan can use
 //! fewer elements than the largest total of buffers live at one step
 //! ([`lower_bound`]); `tests/tests/graph_model.rs` compares the two on
 //! every golden model.

@@ -1,5 +1,5 @@
 //! One quantiser for every network: float [`Net`] in, integer [`QModel`]
-//! out, with a hook per op ([`NetLayer::quantise`]).
+//! out, with a hook per op ([`crate::ops::NetLayer::quantise`]).
 //!
 //! * Weights: symmetric, per output row, one scale shared by all experts of a
 //!   row so their accumulators can be blended before a single requantisation.
@@ -22,12 +22,11 @@ use phasegate::blob::{
 };
 use serde::Serialize;
 
-use crate::calibrate::{calibrate, normal_inputs, Ranges};
+use crate::calibrate::{calibrate, Ranges};
 use crate::encode::{QKind, QLayer, QModel, Wiring};
 
 pub mod graph;
 use crate::net::{GatingMode, Net};
-use crate::ops::NetLayer;
 
 /// Knobs of the quantiser.
 #[derive(Clone, Debug, Serialize)]
@@ -474,7 +473,7 @@ pub(crate) fn output_stage_records(
 }
 
 /// Scales of the input columns of `consumer` (the matrices its op applies
-/// to its input, see [`NetLayer::input_rows`]), at most `caps[j]` each.
+/// to its input, see [`crate::ops::NetLayer::input_rows`]), at most `caps[j]` each.
 ///
 /// The consumer's rows are quantised with one scale per row, so a column
 /// whose effective weight `w / u_j` is large coarsens the whole row. With
@@ -576,18 +575,7 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
         return graph::quantise_graph(net, g, opts);
     }
     let gating = gating_for(net.mode, net.experts())?;
-    let wanted = net
-        .layers
-        .iter()
-        .map(NetLayer::calibration_samples)
-        .fold(opts.calibration_samples, usize::max);
-    let samples = normal_inputs(
-        &net.xmean.to_vec(),
-        &net.xstd.to_vec(),
-        wanted,
-        opts.calibration_scale,
-        opts.seed,
-    );
+    let samples = crate::calibrate::calibration_inputs(net, opts);
     let ranges = calibrate(net, &samples, &[]);
     let input_frac = frac_for(opts.input_range_sigma, 1.0, 15);
 

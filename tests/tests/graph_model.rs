@@ -137,7 +137,8 @@ fn broken_descriptions_name_the_node_and_the_problem() {
     let arrays = exporter::cp::import::read_arrays(&weights).unwrap();
     let good = description(&net);
     net_from_file(&good, &arrays).unwrap();
-    let cases: Vec<(Box<dyn Fn(&mut GraphFile)>, &str)> = vec![
+    type Edit = Box<dyn Fn(&mut GraphFile)>;
+    let cases: Vec<(Edit, &str)> = vec![
         (
             Box::new(|f| f.nodes[1].inputs = vec!["gate9".into()]),
             "no earlier node named \"gate9\"",

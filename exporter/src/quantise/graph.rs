@@ -1,5 +1,5 @@
-//! The quantiser's format policy for graphs ([`Wiring::Graph`]): the same
-//! per-op hooks ([`NetLayer::quantise`]) and encoder as chains, with formats
+//! The quantiser's format policy for graphs ([`crate::net::Wiring::Graph`]): the same
+//! per-op hooks ([`crate::net::NetLayer::quantise`]) and encoder as chains, with formats
 //! chosen per node from calibration:
 //!
 //! * the normalised input columns at Q`input_frac`, as for chains;
@@ -17,16 +17,15 @@
 
 use std::collections::BTreeMap;
 
-use ndarray::Array1;
 use phasegate::blob::{Activation, GateSource, Gating, ModelKind, Slice, SoftmaxDesc, Source};
 
 use super::{
     frac_for, gating_for, output_stage_records, LayerSpec, QuantError, QuantLayerReport,
     QuantOptions, Quantised,
 };
-use crate::calibrate::{normal_inputs, Ranges};
+use crate::calibrate::{calibration_inputs, max_into, ms_into, Ranges};
 use crate::encode::{QKind, QModel, QNode, QNodeOp, Wiring as QWiring};
-use crate::net::{Graph, GraphOp, Net, NetLayer};
+use crate::net::{Graph, GraphOp, Net};
 
 /// What calibration saw at one node.
 #[derive(Clone, Debug, Default)]
@@ -41,33 +40,8 @@ struct NodeStats {
     mid_ms: Option<Vec<f64>>,
 }
 
-fn max_into(acc: &mut Vec<f64>, v: &Array1<f64>) {
-    acc.resize(v.len(), 0.0);
-    for (a, x) in acc.iter_mut().zip(v) {
-        *a = a.max(x.abs());
-    }
-}
-
-fn ms_into(acc: &mut Vec<f64>, v: &Array1<f64>, n: f64) {
-    acc.resize(v.len(), 0.0);
-    for (a, x) in acc.iter_mut().zip(v) {
-        *a += x * x / n;
-    }
-}
-
 fn calibrate(net: &Net, g: &Graph, opts: &QuantOptions) -> Vec<NodeStats> {
-    let wanted = net
-        .layers
-        .iter()
-        .map(NetLayer::calibration_samples)
-        .fold(opts.calibration_samples, usize::max);
-    let samples = normal_inputs(
-        &net.xmean.to_vec(),
-        &net.xstd.to_vec(),
-        wanted,
-        opts.calibration_scale,
-        opts.seed,
-    );
+    let samples = calibration_inputs(net, opts);
     let n = samples.inputs.len().max(1) as f64;
     let mut stats = vec![NodeStats::default(); g.nodes.len()];
     for (x, &p) in samples.inputs.iter().zip(&samples.phases) {

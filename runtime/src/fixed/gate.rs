@@ -32,7 +32,7 @@ impl Gate {
     };
 
     /// The gate of a softmax gate node: the Q16 softmax of `logits`
-    /// (Q`frac`, at most [`MAX_ACTIVE`] of them), every expert active.
+    /// (Q`frac`, at most [`crate::MAX_LOGITS`] of them), every expert active.
     pub fn softmax(logits: &[i16], frac: u8) -> Result<Gate> {
         let mut weights = [0i32; MAX_ACTIVE];
         softmax_q16(logits, frac, &mut weights)?;
