@@ -22,7 +22,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use phasegate::style::BlendWeight;
-use phasegate::StyleId;
+use phasegate::{Mix, Model, Phase, Runtime, Style, StyleId};
 
 use super::*;
 

@@ -1,0 +1,375 @@
+//! Running the firmware: booting QEMU with the blob, the styles and the
+//! input image, reading back its outputs and timings, and the host
+//! runtime's outputs for the same frames.
+
+use std::path::Path;
+use std::time::Duration;
+
+use anyhow::{bail, ensure, Context, Result};
+use phasegate::{Mix, Model, Phase, Runtime, Style};
+
+use super::report::*;
+use super::*;
+
+/// `host-sim target`: builds the firmware if needed, runs it, prints the
+/// report, and fails on any mismatch.
+pub fn run_target(args: &TargetArgs) -> Result<TargetReport> {
+    let report = execute(args)?;
+    print!("{}", report.render());
+    if !report.bit_exact() {
+        bail!(
+            "the firmware's outputs differ from the host runtime ({} mismatching outputs{})",
+            report.mismatches,
+            match report.golden_mismatches {
+                Some(n) if n > 0 => format!(", {n} golden mismatches"),
+                _ => String::new(),
+            }
+        );
+    }
+    Ok(report)
+}
+
+/// QEMU time limit for `frames` frames of `macs` MACs: generous (QEMU with
+/// -icount runs well over 50 million instructions per second here; this
+/// allows 10 per MAC at 5 million per second), overridable with
+/// `PHASEGATE_QEMU_TIMEOUT` (seconds).
+pub(crate) fn time_limit(frames: usize, macs: u32) -> Duration {
+    if let Some(secs) = std::env::var("PHASEGATE_QEMU_TIMEOUT")
+        .ok()
+        .and_then(|v| v.parse::<u64>().ok())
+    {
+        return Duration::from_secs(secs);
+    }
+    let instructions = frames as f64 * (f64::from(macs) * 10.0 + 200_000.0) + 50e6;
+    Duration::from_secs_f64(60.0 + instructions / 5e6)
+}
+
+/// A firmware run with its log decoded.
+pub struct Booted {
+    /// The QEMU run.
+    pub run: qemu::QemuRun,
+    /// Decoded defmt lines.
+    pub log: Vec<String>,
+}
+
+/// Boots the firmware `elf` with `blob` (if any) at MODEL, the STYLES image
+/// `styles` (if any) at STYLES and the input image `image` (if any) at
+/// HOSTIO; decodes the log. Does not judge the exit code.
+pub fn boot(
+    elf: &ElfInfo,
+    elf_path: &Path,
+    blob: Option<&Path>,
+    styles: Option<&[u8]>,
+    image: Option<&[u8]>,
+    timeout: Duration,
+) -> Result<Booted> {
+    let scratch = tempfile::Builder::new()
+        .prefix("phasegate-io-")
+        .tempdir()
+        .context("cannot create a temporary directory")?;
+    let mut loads = Vec::new();
+    if let Some(b) = blob {
+        let len = std::fs::metadata(b)
+            .with_context(|| format!("cannot read {}", b.display()))?
+            .len();
+        let room = elf.model.1 - elf.model.0;
+        ensure!(
+            len <= room,
+            "{} is {len} bytes, the MODEL region (memory.x) holds {room} bytes",
+            b.display()
+        );
+        loads.push(qemu::Load {
+            file: b.to_path_buf(),
+            addr: elf.model.0,
+        });
+    }
+    // The images host-sim writes: what, its file name, its region, and what
+    // to say when it does not fit.
+    let images = [
+        (
+            styles,
+            "styles.bin",
+            elf.styles,
+            "the style blobs take",
+            "STYLES",
+            "",
+        ),
+        (
+            image,
+            "inputs.bin",
+            elf.hostio,
+            "the input image is",
+            "HOSTIO",
+            ": run fewer frames",
+        ),
+    ];
+    for (img, name, (start, end), what, region, hint) in images {
+        let Some(img) = img else { continue };
+        let room = end - start;
+        ensure!(
+            img.len() as u64 <= room,
+            "{what} {} bytes, the {region} region (memory.x) holds {room} bytes{hint}",
+            img.len()
+        );
+        let path = scratch.path().join(name);
+        std::fs::write(&path, img).with_context(|| format!("cannot write {name}"))?;
+        loads.push(qemu::Load {
+            file: path,
+            addr: start,
+        });
+    }
+    let run = qemu::run(elf_path, &loads, timeout)?;
+    let log = log::decode(&elf.bytes, &run.stdout)?;
+    Ok(Booted { run, log })
+}
+
+/// Host reference outputs: (i16, f32) per frame, flattened, from the styled
+/// runtime with `styles` added in order and each frame's mix set before it
+/// (what the firmware does).
+pub fn host_outputs(
+    model: Model<'_>,
+    styles: &[StyleFile],
+    frames: &Frames,
+) -> Result<(Vec<i16>, Vec<f32>)> {
+    let out_dim = model.output_dim();
+    let mut rt = Box::new(
+        Runtime::<'_, HOST_W, HOST_S, HOST_N>::new(model)
+            .context("the host runtime refuses the model")?,
+    );
+    for (i, st) in styles.iter().enumerate() {
+        let style = Style::from_bytes(&st.bytes)
+            .with_context(|| format!("style {i} ({})", st.path.display()))?;
+        rt.add_style(style).with_context(|| {
+            format!(
+                "style {i} ({}) is refused by the host runtime",
+                st.path.display()
+            )
+        })?;
+    }
+    let mut q_in = vec![0i16; frames.input_dim];
+    let mut qs = Vec::with_capacity(frames.len() * out_dim);
+    let mut fs = vec![0f32; frames.len() * out_dim];
+    for i in 0..frames.len() {
+        let mix = frames.mixes.get(i).copied().unwrap_or(Mix::Base);
+        rt.set_mix(mix)
+            .with_context(|| format!("frame {i}: mix {}", styles::mix_spec_item(mix)))?;
+        let phase =
+            Phase::from_radians(frames.phases[i]).with_context(|| format!("frame {i}: phase"))?;
+        rt.quantise_input(frames.input(i), &mut q_in)
+            .with_context(|| format!("frame {i}: inputs"))?;
+        let q = rt
+            .run_quantised(phase, &q_in)
+            .with_context(|| format!("frame {i}"))?
+            .to_vec();
+        rt.dequantise_output(&q, &mut fs[i * out_dim..(i + 1) * out_dim])?;
+        qs.extend_from_slice(&q);
+    }
+    Ok((qs, fs))
+}
+
+/// The firmware's output file, parsed.
+struct TargetOutputs {
+    q: Vec<i16>,
+    f: Vec<f32>,
+    infer_ticks: Vec<u64>,
+    frame_ticks: Vec<u64>,
+    trailer: wire::Trailer,
+}
+
+fn parse_outputs(
+    file: &[u8],
+    frames: usize,
+    output_dim: usize,
+    input_crc: u32,
+) -> Result<TargetOutputs> {
+    let h = wire::OutputHeader::parse(file)
+        .map_err(|e| anyhow::anyhow!("firmware output file: {e}"))?;
+    ensure!(
+        h.mode == wire::Mode::Network,
+        "firmware output file is in {:?} mode, expected network mode",
+        h.mode
+    );
+    ensure!(
+        h.frames as usize == frames && h.output_dim as usize == output_dim && h.input_crc == input_crc,
+        "firmware output file is for {} frames x {} outputs (input CRC {:#x}), expected {frames} x {output_dim} ({input_crc:#x})",
+        h.frames,
+        h.output_dim,
+        h.input_crc
+    );
+    let rl = h.record_len();
+    let body = &file[wire::HEADER_LEN..];
+    let expected = frames * rl + wire::HEADER_LEN;
+    ensure!(
+        body.len() == expected,
+        "firmware output file holds {} bytes after its header, expected {expected} ({frames} records and the trailer): the run stopped early",
+        body.len()
+    );
+    let mut out = TargetOutputs {
+        q: vec![0; frames * output_dim],
+        f: vec![0.0; frames * output_dim],
+        infer_ticks: Vec::with_capacity(frames),
+        frame_ticks: Vec::with_capacity(frames),
+        trailer: wire::Trailer::default(),
+    };
+    for i in 0..frames {
+        let r = &body[i * rl..(i + 1) * rl];
+        let span = i * output_dim..(i + 1) * output_dim;
+        let head = wire::decode_record(r, &mut out.q[span.clone()], &mut out.f[span])
+            .context("firmware output record has the wrong length")?;
+        out.infer_ticks.push(u64::from(head.infer_ticks));
+        out.frame_ticks.push(u64::from(head.frame_ticks));
+    }
+    out.trailer = wire::Trailer::parse(&body[frames * rl..])
+        .map_err(|e| anyhow::anyhow!("firmware output trailer: {e}"))?;
+    ensure!(
+        out.trailer.frames_done as usize == frames,
+        "the firmware reports {} frames done, expected {frames}",
+        out.trailer.frames_done
+    );
+    Ok(out)
+}
+
+/// Does the work of [`run_target`] without printing or judging the result.
+pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
+    let blob = std::fs::read(&args.model)
+        .with_context(|| format!("cannot read the model blob {}", args.model.display()))?;
+    let model = Model::from_bytes(&blob)
+        .with_context(|| format!("{} is not a valid model blob", args.model.display()))?;
+    let style_files = args
+        .styles
+        .iter()
+        .map(|p| StyleFile::read(p))
+        .collect::<Result<Vec<_>>>()?;
+    let mix = args
+        .mix
+        .clone()
+        .unwrap_or_else(|| MixSpec::default_for(style_files.len()));
+    let mut frames = frames::select(
+        args.inputs.as_deref(),
+        args.phases.as_deref(),
+        args.frames,
+        &blob,
+        &model,
+    )?;
+    frames.mixes = mix.schedule(frames.len());
+    styles::check_schedule(&frames.mixes, style_files.len())?;
+    let output_dim = model.output_dim();
+    let macs = model.macs_per_frame();
+    let model_ram_bytes = model.ram_bytes();
+    let (host_q, host_f) = host_outputs(model, &style_files, &frames)?;
+    let golden_mismatches = frames.expected_q.as_ref().map(|e| {
+        e.iter().zip(&host_q).filter(|(a, b)| a != b).count() + e.len().abs_diff(host_q.len())
+    });
+
+    eprintln!(
+        "building the firmware (cargo build --release in {}) ...",
+        firmware_dir().display()
+    );
+    let elf_path = build_firmware()?;
+    let elf = ElfInfo::read(&elf_path)?;
+    let image = frames.image(output_dim);
+    let input_crc = wire::InputHeader::parse(&image)
+        .map(|(h, _)| h.crc)
+        .unwrap_or(0);
+    let styles_image = styles::pack_styles(
+        &style_files
+            .iter()
+            .map(|s| s.bytes.clone())
+            .collect::<Vec<_>>(),
+    );
+    let frame_macs: Vec<u64> = frames
+        .mixes
+        .iter()
+        .map(|&m| styles::frame_macs(u64::from(macs), &style_files, m))
+        .collect();
+    let max_macs = frame_macs.iter().copied().max().unwrap_or(u64::from(macs));
+    eprintln!("running {} frames under QEMU ...", frames.len());
+    let booted = boot(
+        &elf,
+        &elf_path,
+        Some(&args.model),
+        (!style_files.is_empty()).then_some(&styles_image[..]),
+        Some(&image),
+        time_limit(frames.len(), u32::try_from(max_macs).unwrap_or(u32::MAX)),
+    )?;
+    if booted.run.exit_code != wire::exit::OK {
+        let mut msg = format!(
+            "the firmware exited with code {} ({})",
+            booted.run.exit_code,
+            wire::exit::describe(booted.run.exit_code)
+        );
+        for line in &booted.log {
+            msg.push_str("\n  firmware: ");
+            msg.push_str(line);
+        }
+        if !booted.run.stderr.trim().is_empty() {
+            msg.push_str("\n  qemu: ");
+            msg.push_str(booted.run.stderr.trim());
+        }
+        bail!(msg);
+    }
+    let file = booted
+        .run
+        .output_file
+        .as_deref()
+        .context("the firmware wrote no output file")?;
+    let out = parse_outputs(file, frames.len(), output_dim, input_crc)?;
+    let t = out.trailer;
+    check_calibration(&t)?;
+
+    let mut mismatches = 0;
+    let mut first_mismatches = Vec::new();
+    for (k, ((&hq, &tq), (&hf, &tf))) in host_q
+        .iter()
+        .zip(&out.q)
+        .zip(host_f.iter().zip(&out.f))
+        .enumerate()
+    {
+        if hq != tq || hf.to_bits() != tf.to_bits() {
+            mismatches += 1;
+            if first_mismatches.len() < 10 {
+                first_mismatches.push(Mismatch {
+                    frame: k / output_dim,
+                    output: k % output_dim,
+                    host: hq,
+                    target: tq,
+                    host_f32: hf,
+                    target_f32: tf,
+                });
+            }
+        }
+    }
+    let ticks_to_instr = |v: &[u64]| {
+        v.iter()
+            .map(|t| t * INSTRUCTIONS_PER_TICK)
+            .collect::<Vec<_>>()
+    };
+    let (flash, ram) = memory_use(&elf, &t);
+    let infer = ticks_to_instr(&out.infer_ticks);
+    let mix_groups = styles::mix_groups(&frames.mixes, &infer, u64::from(macs), &style_files);
+    Ok(TargetReport {
+        model: args.model.clone(),
+        blob_len: blob.len(),
+        model_region: elf.model.1 - elf.model.0,
+        source: frames.source.clone(),
+        frames: frames.len(),
+        output_dim,
+        mismatches,
+        first_mismatches,
+        golden_mismatches,
+        infer_instructions: Stats::of(&infer),
+        frame_instructions: Stats::of(&ticks_to_instr(&out.frame_ticks)),
+        macs_per_frame: macs,
+        per_frame: infer.iter().copied().zip(frame_macs).collect(),
+        styles_image: (styles_image.len(), elf.styles.1 - elf.styles.0),
+        styles: style_files,
+        mix,
+        mix_groups,
+        model_ram_bytes,
+        calibration: (t.calib_ticks, t.calib_instructions),
+        flash,
+        ram,
+        log: booted.log,
+        wall: booted.run.wall,
+    })
+}
