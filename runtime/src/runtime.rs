@@ -250,8 +250,11 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
                 let mut at = usize::from(node.input.offset);
                 for s in &node.inputs {
                     let src = locate(h, s).ok_or(Error::GraphInvalid { node: i as u8 })?;
+                    // Past u16 a span cannot name the place: refused, never wrapped.
+                    let offset =
+                        u16::try_from(at).map_err(|_| Error::ArenaOverlap { node: i as u8 })?;
                     let dst = Span {
-                        offset: at as u16,
+                        offset,
                         len: src.len,
                     };
                     let (from, to, _) = split(&mut self.arena.0, src, dst, Span::default())?;
