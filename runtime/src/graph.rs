@@ -140,7 +140,11 @@ pub fn buffers(h: &Header) -> heapless::Vec<Buffer, MAX_BUFFERS> {
 
 /// Elements the plan uses: the largest end of any span.
 pub fn arena_elements(h: &Header) -> usize {
-    buffers(h)
+    end_of(&buffers(h))
+}
+
+fn end_of(buffers: &[Buffer]) -> usize {
+    buffers
         .iter()
         .map(|b| b.span.end() as usize)
         .max()
@@ -223,7 +227,7 @@ pub fn check_plan(h: &Header) -> Result<()> {
             }
         }
     }
-    if u64::from(h.ram_bytes) != 2 * arena_elements(h) as u64 {
+    if u64::from(h.ram_bytes) != 2 * end_of(&all) as u64 {
         return Err(Error::HeaderInconsistent);
     }
     Ok(())

@@ -242,11 +242,13 @@ pub fn net_from_file(file: &GraphFile, arrays: &BTreeMap<String, NpArray>) -> Re
             }
         }
         let in_dim: usize = inputs.iter().map(|s| usize::from(s.len)).sum();
-        let gate = match n.gate.as_deref() {
-            None => GateSource::None,
-            Some("phase") => GateSource::Phase,
+        // The gate, and the expert count it implies (a softmax gate's is
+        // its width; the phase's is whatever the weights have).
+        let (gate, gate_experts) = match n.gate.as_deref() {
+            None => (GateSource::None, Some(1)),
+            Some("phase") => (GateSource::Phase, None),
             Some(g) => match names.get(g) {
-                Some(&(j, _))
+                Some(&(j, k))
                     if matches!(
                         nodes.get(usize::from(j)),
                         Some(GraphNode {
@@ -255,7 +257,7 @@ pub fn net_from_file(file: &GraphFile, arrays: &BTreeMap<String, NpArray>) -> Re
                         })
                     ) =>
                 {
-                    GateSource::Node(j)
+                    (GateSource::Node(j), Some(k))
                 }
                 _ => bail!(
                     "{}: gate {g:?} is not \"phase\" or an earlier softmax node",
@@ -289,17 +291,7 @@ pub fn net_from_file(file: &GraphFile, arrays: &BTreeMap<String, NpArray>) -> Re
                 let bias = n.bias.clone().unwrap_or(format!("{}.bias", n.name));
                 let layer = dense(arrays, &weight, &bias, in_dim).with_context(ctx)?;
                 let (k, out) = (layer.experts(), layer.w[0].nrows());
-                let want = match gate {
-                    GateSource::None => 1,
-                    GateSource::Phase => k,
-                    GateSource::Node(j) => file.nodes[usize::from(j)]
-                        .inputs
-                        .iter()
-                        .map(|s| {
-                            parse_slice(s, &names, file.input_dim).map_or(0, |s| usize::from(s.len))
-                        })
-                        .sum(),
-                };
+                let want = gate_experts.unwrap_or(k);
                 if k != want {
                     bail!("{}: {k} experts, but its gate gives {want}", ctx());
                 }

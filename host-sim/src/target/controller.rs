@@ -456,27 +456,7 @@ pub fn execute(args: &ControllerArgs<'_>) -> Result<ControllerReport> {
         Some(&image),
         time_limit(frames, u32::try_from(max_macs).unwrap_or(u32::MAX)),
     )?;
-    if booted.run.exit_code != wire::exit::OK {
-        let mut msg = format!(
-            "the firmware exited with code {} ({})",
-            booted.run.exit_code,
-            wire::exit::describe(booted.run.exit_code)
-        );
-        for line in &booted.log {
-            msg.push_str("\n  firmware: ");
-            msg.push_str(line);
-        }
-        if !booted.run.stderr.trim().is_empty() {
-            msg.push_str("\n  qemu: ");
-            msg.push_str(booted.run.stderr.trim());
-        }
-        bail!(msg);
-    }
-    let file = booted
-        .run
-        .output_file
-        .as_deref()
-        .context("the firmware wrote no output file")?;
+    let file = booted.output_file()?;
     let out = parse_pose_file(file, frames, input_crc)?;
     let t = out.trailer;
     super::check_calibration(&t)?;

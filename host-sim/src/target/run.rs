@@ -52,6 +52,33 @@ pub struct Booted {
     pub log: Vec<String>,
 }
 
+impl Booted {
+    /// The output file of a run that exited cleanly; otherwise an error
+    /// with the exit code, the firmware's log and QEMU's stderr.
+    pub fn output_file(&self) -> Result<&[u8]> {
+        if self.run.exit_code != wire::exit::OK {
+            let mut msg = format!(
+                "the firmware exited with code {} ({})",
+                self.run.exit_code,
+                wire::exit::describe(self.run.exit_code)
+            );
+            for line in &self.log {
+                msg.push_str("\n  firmware: ");
+                msg.push_str(line);
+            }
+            if !self.run.stderr.trim().is_empty() {
+                msg.push_str("\n  qemu: ");
+                msg.push_str(self.run.stderr.trim());
+            }
+            bail!(msg);
+        }
+        self.run
+            .output_file
+            .as_deref()
+            .context("the firmware wrote no output file")
+    }
+}
+
 /// Boots the firmware `elf` with `blob` (if any) at MODEL, the STYLES image
 /// `styles` (if any) at STYLES and the input image `image` (if any) at
 /// HOSTIO; decodes the log. Does not judge the exit code.
@@ -292,27 +319,7 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         Some(&image),
         time_limit(frames.len(), u32::try_from(max_macs).unwrap_or(u32::MAX)),
     )?;
-    if booted.run.exit_code != wire::exit::OK {
-        let mut msg = format!(
-            "the firmware exited with code {} ({})",
-            booted.run.exit_code,
-            wire::exit::describe(booted.run.exit_code)
-        );
-        for line in &booted.log {
-            msg.push_str("\n  firmware: ");
-            msg.push_str(line);
-        }
-        if !booted.run.stderr.trim().is_empty() {
-            msg.push_str("\n  qemu: ");
-            msg.push_str(booted.run.stderr.trim());
-        }
-        bail!(msg);
-    }
-    let file = booted
-        .run
-        .output_file
-        .as_deref()
-        .context("the firmware wrote no output file")?;
+    let file = booted.output_file()?;
     let out = parse_outputs(file, frames.len(), output_dim, input_crc)?;
     let t = out.trailer;
     check_calibration(&t)?;

@@ -80,7 +80,6 @@ const ONE: i32 = 1 << 16;
 /// * [`Error::LengthMismatch`] `{ expected: logits.len(), found: coefs.len() }`
 ///   if `coefs` is shorter than `logits`;
 /// * [`Error::UnsupportedParameter`] `{ layer: 255 }` if `frac > 15`.
-#[inline(never)]
 pub fn softmax_q16(logits: &[i16], frac: u8, coefs: &mut [i32]) -> Result<()> {
     let k = logits.len();
     if k == 0 || k > MAX_LOGITS {
