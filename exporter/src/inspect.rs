@@ -49,7 +49,7 @@ pub fn describe(model: &Model<'_>) -> String {
         slice_name(&h.output)
     );
     s.push('\n');
-    s.push_str(&node_table(&h.gating, &h.nodes));
+    s.push_str(&node_table(&h.gating, &h.nodes.to_vec()));
     let _ = writeln!(
         s,
         "\ninput stage @{} ({} B), output stage @{} ({} B)",

@@ -13,7 +13,7 @@
 //! ([`lower_bound`]); `tests/tests/graph_model.rs` compares the two on
 //! every golden model.
 
-use phasegate::blob::{Header, Span};
+use phasegate::blob::{Header, Nodes, Span};
 use phasegate::graph::{buffers, in_place, locate, Buffer, Role};
 
 use crate::encode::EncodeError;
@@ -119,7 +119,7 @@ fn first_fit(bufs: &[Buffer], order: &[usize]) -> (Vec<usize>, usize) {
 
 /// The largest total length of buffers live at one step: no plan can use
 /// fewer elements.
-pub fn lower_bound(h: &Header) -> usize {
+pub fn lower_bound<N: Nodes>(h: &Header<N>) -> usize {
     let bufs = buffers(h);
     let last = bufs.iter().map(|b| b.last).max().unwrap_or(0);
     (0..=last)

@@ -105,7 +105,10 @@ fn exports_a_pfnn_directory_with_report_and_inspects_it() {
             "linear" => 10,
             _ => 50,
         };
-        assert_eq!(model.header().nodes[0].layer().unwrap().experts, experts);
+        assert_eq!(
+            model.header().decoded().nodes[0].layer().unwrap().experts,
+            experts
+        );
         let r: serde_json::Value =
             serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
         assert_eq!(r["blob_bytes"].as_u64().unwrap() as usize, bytes.len());

@@ -9,7 +9,7 @@
 //! step that reads it, both included; two buffers whose lifetimes meet must
 //! not share an element.
 
-use crate::blob::{GateSource, Header, Node, NodeOp, Slice, Source, Span, MAX_NODES};
+use crate::blob::{GateSource, Header, Node, NodeOp, Nodes, Slice, Source, Span, MAX_NODES};
 use crate::error::{Error, Result};
 use crate::ops::{GatedOp, Layer};
 
@@ -72,16 +72,25 @@ pub fn in_place(node: &Node) -> bool {
 
 /// The arena range of `slice`, or `None` when its source does not exist,
 /// has no vector (a softmax gate) or is shorter than the slice.
-pub fn locate(h: &Header, slice: &Slice) -> Option<Span> {
+pub fn locate<N: Nodes>(h: &Header<N>, slice: &Slice) -> Option<Span> {
     let (base, width) = match slice.source {
         Source::Input => (h.input, h.input_dim),
         Source::Node(j) => {
-            let n = h.nodes.get(usize::from(j))?;
+            let n = h.nodes.node(usize::from(j))?;
             (n.output, n.out_dim())
         }
     };
+    if base.len != width {
+        return None;
+    }
+    within(base, slice)
+}
+
+/// The arena range of `slice` of the vector that fills `base`, or `None`
+/// when the slice does not lie inside it.
+pub(crate) fn within(base: Span, slice: &Slice) -> Option<Span> {
     let end = u32::from(slice.start) + u32::from(slice.len);
-    if end > u32::from(width) || base.len != width || width == 0 {
+    if end > u32::from(base.len) || base.len == 0 {
         return None;
     }
     Some(Span {
@@ -91,22 +100,22 @@ pub fn locate(h: &Header, slice: &Slice) -> Option<Span> {
 }
 
 /// Last step that reads `source`, or `written` when nothing does.
-fn last_read(h: &Header, source: Source, written: usize) -> usize {
+fn last_read<N: Nodes>(h: &Header<N>, source: Source, written: usize) -> usize {
     let mut last = written;
-    for (i, n) in h.nodes.iter().enumerate() {
+    for (i, n) in h.nodes.each().enumerate() {
         if n.inputs.iter().any(|s| s.source == source) {
             last = last.max(i + 1);
         }
     }
     if h.output.source == source {
-        last = h.nodes.len() + 1;
+        last = h.nodes.count() + 1;
     }
     last
 }
 
 /// Every buffer of the plan with its lifetime, in the order they are
 /// written. Header only: the spans are whatever the header says.
-pub fn buffers(h: &Header) -> heapless::Vec<Buffer, MAX_BUFFERS> {
+pub fn buffers<N: Nodes>(h: &Header<N>) -> heapless::Vec<Buffer, MAX_BUFFERS> {
     let mut out = heapless::Vec::new();
     let mut push = |role, span: Span, first, last| {
         // Cannot fail: at most one input and three buffers per node.
@@ -118,9 +127,9 @@ pub fn buffers(h: &Header) -> heapless::Vec<Buffer, MAX_BUFFERS> {
         });
     };
     push(Role::Input, h.input, 0, last_read(h, Source::Input, 0));
-    for (i, n) in h.nodes.iter().enumerate() {
+    for (i, n) in h.nodes.each().enumerate() {
         let (step, id) = (i + 1, i as u8);
-        if !in_place(n) {
+        if !in_place(&n) {
             push(Role::Concat(id), n.input, step, step);
         }
         if n.scratch.len > 0 {
@@ -139,7 +148,7 @@ pub fn buffers(h: &Header) -> heapless::Vec<Buffer, MAX_BUFFERS> {
 }
 
 /// Elements the plan uses: the largest end of any span.
-pub fn arena_elements(h: &Header) -> usize {
+pub fn arena_elements<N: Nodes>(h: &Header<N>) -> usize {
     end_of(&buffers(h))
 }
 
@@ -155,16 +164,17 @@ fn end_of(buffers: &[Buffer]) -> usize {
 /// node and lies inside it; every node's input, scratch and output spans
 /// have the lengths its op needs; gate sources are earlier softmax gates with the layer's expert
 /// count; the output is a slice of the right width.
-pub fn check_structure(h: &Header) -> Result<()> {
-    if h.nodes.is_empty() || h.input_dim == 0 || h.output_dim == 0 {
+pub fn check_structure<N: Nodes>(h: &Header<N>) -> Result<()> {
+    if h.nodes.count() == 0 || h.input_dim == 0 || h.output_dim == 0 {
         return Err(Error::UnsupportedParameter { layer: IO });
     }
     if h.input.len != h.input_dim {
         return Err(Error::DimensionMismatch { layer: IO });
     }
-    for (i, n) in h.nodes.iter().enumerate() {
+    for i in 0..h.nodes.count() {
         let id = i as u8;
         let bad = Error::GraphInvalid { node: id };
+        let n = h.nodes.node(i).ok_or(bad)?;
         let mut width = 0u32;
         for s in &n.inputs {
             let earlier = match s.source {
@@ -196,8 +206,8 @@ pub fn check_structure(h: &Header) -> Result<()> {
             (NodeOp::Softmax(_), GateSource::None) => {}
             (NodeOp::Softmax(_), _) => return Err(bad),
             (NodeOp::Layer(d), GateSource::Node(j)) => {
-                let gate = h.nodes.get(usize::from(j)).filter(|_| usize::from(j) < i);
-                match gate.map(|g| &g.op) {
+                let gate = h.nodes.node(usize::from(j)).filter(|_| usize::from(j) < i);
+                match gate.map(|g| g.op) {
                     Some(NodeOp::Softmax(s)) if s.experts == d.experts => {}
                     Some(NodeOp::Softmax(_)) => return Err(Error::GatingMismatch { layer: id }),
                     _ => return Err(bad),
@@ -216,7 +226,7 @@ pub fn check_structure(h: &Header) -> Result<()> {
 /// The arena plan: no two buffers live at a common step share an element,
 /// and `ram_bytes` is exactly twice the elements the plan uses (so the
 /// figure is both sufficient and tight). Call after [`check_structure`].
-pub fn check_plan(h: &Header) -> Result<()> {
+pub fn check_plan<N: Nodes>(h: &Header<N>) -> Result<()> {
     let all = buffers(h);
     for (k, a) in all.iter().enumerate() {
         for b in all.iter().skip(k + 1) {
@@ -231,15 +241,6 @@ pub fn check_plan(h: &Header) -> Result<()> {
         return Err(Error::HeaderInconsistent);
     }
     Ok(())
-}
-
-/// The softmax gate slot of node `j`: how many softmax gates precede it.
-pub(crate) fn gate_slot(nodes: &[Node], j: u8) -> usize {
-    nodes
-        .iter()
-        .take(usize::from(j))
-        .filter(|n| matches!(n.op, NodeOp::Softmax(_)))
-        .count()
 }
 
 #[cfg(test)]

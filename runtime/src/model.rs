@@ -2,8 +2,8 @@
 
 use crate::blob::records::stage_record;
 use crate::blob::{
-    Framed, GateSource, Gating, Header, LayerDesc, ModelKind, Node, NodeOp, Requant, Section,
-    Source, REQUANT_RECORD_LEN, STAGE_RECORD_LEN,
+    Framed, GateSource, Gating, Header, LayerDesc, ModelKind, Node, NodeOp, NodeTable, Nodes,
+    Requant, Section, Source, REQUANT_RECORD_LEN, STAGE_RECORD_LEN,
 };
 use crate::error::{Error, Result};
 use crate::fixed::gate::Gate;
@@ -21,11 +21,12 @@ pub const MAX_GATES: usize = 2;
 
 /// A blob that passed every check: its header and its payload, borrowed.
 ///
-/// Weights stay where the blob is (flash on a device); only the header
-/// (a few hundred bytes) is copied out.
+/// Weights and the node table stay where the blob is (flash on a device);
+/// only the header's fixed fields and where each node starts are copied
+/// out (under 200 bytes).
 #[derive(Clone, Debug)]
 pub struct Model<'a> {
-    header: Header,
+    header: Header<NodeTable<'a>>,
     payload: &'a [u8],
     blob_len: usize,
 }
@@ -59,8 +60,9 @@ impl<'a> Model<'a> {
         Ok(model)
     }
 
-    /// The decoded header.
-    pub fn header(&self) -> &Header {
+    /// The header; its nodes decode one at a time ([`Nodes`]), or all
+    /// at once with [`Header::decoded`].
+    pub fn header(&self) -> &Header<NodeTable<'a>> {
         &self.header
     }
 
@@ -103,12 +105,12 @@ impl<'a> Model<'a> {
     /// Node `i`'s layer, bound to its sections, ready to run (`None` for
     /// a softmax gate or past the last node).
     pub fn kernel(&self, i: usize) -> Option<Layer<'a>> {
-        let d = *self.header.nodes.get(i)?.layer()?;
+        let d = *self.header.nodes.node(i)?.layer()?;
         Layer::new(self.payload, d, i as u8)
     }
 
     /// The nodes, in evaluation order.
-    pub fn nodes(&self) -> &[Node] {
+    pub fn nodes(&self) -> &NodeTable<'a> {
         &self.header.nodes
     }
 
@@ -135,11 +137,12 @@ impl<'a> Model<'a> {
         validate_gating(&h.gating)?;
         check_structure(h)?;
         let mut gates = 0;
-        for (i, n) in h.nodes.iter().enumerate() {
+        for i in 0..h.nodes.count() {
             let id = i as u8;
+            let n = h.nodes.node(i).ok_or(Error::GraphInvalid { node: id })?;
             match &n.op {
                 NodeOp::Layer(d) => {
-                    if d.experts != node_gating(&h.gating, &h.nodes, n).experts() {
+                    if d.experts != node_gating(&h.gating, &h.nodes, &n).experts() {
                         return Err(Error::GatingMismatch { layer: id });
                     }
                     Layer::bind(self.payload, *d, id)?;
@@ -153,7 +156,7 @@ impl<'a> Model<'a> {
                     {
                         return Err(Error::UnsupportedParameter { layer: id });
                     }
-                    self.check_logit_formats(n, s.frac, id)?;
+                    self.check_logit_formats(&n, s.frac, id)?;
                 }
             }
         }
@@ -163,10 +166,10 @@ impl<'a> Model<'a> {
         if u64::from(h.macs_per_frame) != macs(h) {
             return Err(Error::HeaderInconsistent);
         }
-        for (i, n) in h.nodes.iter().enumerate() {
+        for (i, n) in h.nodes.each().enumerate() {
             if let Some(d) = n.layer() {
                 Layer::bind(self.payload, *d, i as u8)?
-                    .check(&node_gating(&h.gating, &h.nodes, n))?;
+                    .check(&node_gating(&h.gating, &h.nodes, &n))?;
             }
         }
         Ok(())
@@ -224,11 +227,11 @@ pub(crate) fn validate_gating(g: &Gating) -> Result<u16> {
 
 /// The gating that drives node `n` of `nodes`: none, the phase gating
 /// `phase`, or its softmax gate's.
-pub fn node_gating(phase: &Gating, nodes: &[Node], n: &Node) -> Gating {
+pub fn node_gating<N: Nodes + ?Sized>(phase: &Gating, nodes: &N, n: &Node) -> Gating {
     match n.gate {
         GateSource::None => Gating::Single,
         GateSource::Phase => *phase,
-        GateSource::Node(j) => match nodes.get(usize::from(j)).map(|g| &g.op) {
+        GateSource::Node(j) => match nodes.node(usize::from(j)).map(|g| g.op) {
             Some(NodeOp::Softmax(s)) => Gating::Softmax { experts: s.experts },
             _ => Gating::Single,
         },
@@ -249,14 +252,14 @@ fn stage(payload: &[u8], s: Section) -> impl Iterator<Item = (f32, f32)> + '_ {
 /// `rank x (in + out + active)`; diagonal `active x out`), `active` being
 /// the number of experts the node's gate makes active (1 when ungated).
 /// Softmax gates and concatenations do no multiply-accumulates.
-pub fn macs(h: &Header) -> u64 {
+pub fn macs<N: Nodes>(h: &Header<N>) -> u64 {
     h.nodes
-        .iter()
+        .each()
         .filter_map(|n| {
             let d: &LayerDesc = n.layer()?;
             Some(Layer::macs(
                 d,
-                node_gating(&h.gating, &h.nodes, n).active() as u64,
+                node_gating(&h.gating, &h.nodes, &n).active() as u64,
             ))
         })
         .sum()

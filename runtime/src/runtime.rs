@@ -2,15 +2,17 @@
 //! out by the blob's plan, and optionally a bank of styles (residual
 //! adapters beside a base layer) with the per-frame [`Mix`].
 
-use crate::blob::{Activation, GateSource, NodeOp, Requant, Span, REQUANT_RECORD_LEN};
+use crate::blob::{
+    Activation, GateSource, NodeOp, Nodes, Requant, Source, Span, MAX_NODES, REQUANT_RECORD_LEN,
+};
 use crate::error::{Error, Result};
 use crate::fixed::elu::elu_q;
 use crate::fixed::gate::Gate;
 use crate::fixed::phase::Phase;
 use crate::fixed::{round_shift, sat_i16};
-use crate::graph::{gate_slot, in_place, locate};
+use crate::graph::{in_place, locate, within};
 use crate::model::{Model, MAX_GATES};
-use crate::ops::GatedOp;
+use crate::ops::{GatedOp, Layer};
 use crate::style::{Mix, Style, StyleId};
 
 /// Runs a [`Model`] frame by frame, plain or with styles.
@@ -121,7 +123,7 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
         let base_gate = self
             .model
             .nodes()
-            .get(usize::from(li))
+            .node(usize::from(li))
             .map_or(GateSource::None, |n| n.gate);
         let (bd, ad) = (base.desc(), style.kernel().desc());
         if bd.in_dim != ad.in_dim
@@ -243,16 +245,30 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
     fn forward(&mut self, phase: Phase) -> Result<()> {
         let phase_gate = self.model.gate(phase);
         let mut gates = [Gate::SINGLE; MAX_GATES];
+        // Each node's output span and gate slot, noted as it runs: later
+        // nodes find their slices and gates here instead of decoding the
+        // node they read from again.
+        let mut outputs = [Span::default(); MAX_NODES];
+        let mut slots = [0u8; MAX_NODES];
+        let mut softmaxes = 0u8;
         let weights = self.mix.weights();
         let h = self.model.header();
-        for (i, node) in h.nodes.iter().enumerate() {
-            if !in_place(node) {
+        for (i, node) in h.nodes.each().enumerate() {
+            let id = i as u8;
+            let invalid = Error::GraphInvalid { node: id };
+            if let Some(o) = outputs.get_mut(i) {
+                *o = node.output;
+            }
+            if !in_place(&node) {
                 let mut at = usize::from(node.input.offset);
                 for s in &node.inputs {
-                    let src = locate(h, s).ok_or(Error::GraphInvalid { node: i as u8 })?;
+                    let base = match s.source {
+                        Source::Input => h.input,
+                        Source::Node(j) => *outputs.get(usize::from(j)).ok_or(invalid)?,
+                    };
+                    let src = within(base, s).ok_or(invalid)?;
                     // Past u16 a span cannot name the place: refused, never wrapped.
-                    let offset =
-                        u16::try_from(at).map_err(|_| Error::ArenaOverlap { node: i as u8 })?;
+                    let offset = u16::try_from(at).map_err(|_| Error::ArenaOverlap { node: id })?;
                     let dst = Span {
                         offset,
                         len: src.len,
@@ -265,22 +281,24 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
             let layer = match &node.op {
                 NodeOp::Softmax(s) => {
                     let logits = span_mut(&mut self.arena.0, node.input)?;
-                    let slot = gate_slot(&h.nodes, i as u8);
-                    if let Some(g) = gates.get_mut(slot) {
+                    if let Some(g) = gates.get_mut(usize::from(softmaxes)) {
                         *g = Gate::softmax(logits, s.frac)?;
                     }
+                    if let Some(slot) = slots.get_mut(i) {
+                        *slot = softmaxes;
+                    }
+                    softmaxes = softmaxes.saturating_add(1);
                     continue;
                 }
-                NodeOp::Layer(_) => self
-                    .model
-                    .kernel(i)
-                    .ok_or(Error::SectionOutOfBounds { layer: i as u8 })?,
+                NodeOp::Layer(d) => Layer::new(self.model.payload(), *d, id)
+                    .ok_or(Error::SectionOutOfBounds { layer: id })?,
             };
             let gate = match node.gate {
                 GateSource::None => Gate::SINGLE,
                 GateSource::Phase => phase_gate,
-                GateSource::Node(j) => gates
-                    .get(gate_slot(&h.nodes, j))
+                GateSource::Node(j) => slots
+                    .get(usize::from(j))
+                    .and_then(|&k| gates.get(usize::from(k)))
                     .copied()
                     .unwrap_or(Gate::SINGLE),
             };

@@ -158,7 +158,7 @@ fn example_bytes_are_pinned() {
 fn example_header_is_what_the_document_says() {
     let blob = hex(EXAMPLE_HEX);
     let model = Model::from_bytes(&blob).unwrap();
-    let h = model.header();
+    let h = model.header().decoded();
     assert_eq!(h.kind, ModelKind::Mlp);
     assert_eq!(h.gating, Gating::Single);
     assert_eq!((h.input_dim, h.output_dim), (2, 1));
@@ -399,7 +399,8 @@ fn postcard_encodings_match_the_document() {
 fn padded_varints_load_and_overlong_ones_do_not() {
     let blob = example_blob();
     let payload = &blob[64..];
-    let header = postcard::to_allocvec(Model::from_bytes(&blob).unwrap().header()).unwrap();
+    let header =
+        postcard::to_allocvec(&Model::from_bytes(&blob).unwrap().header().decoded()).unwrap();
     // Byte 2 of the header is input_dim = 2, encoded 0x02. Padded: 0x82 0x00.
     assert_eq!(header[2], 0x02);
     let mut padded = header.clone();
@@ -477,7 +478,7 @@ fn reframe(h: &Header, payload: &[u8]) -> Vec<u8> {
 fn the_loader_checks_of_the_document() {
     let blob = example_blob();
     let payload = blob[64..].to_vec();
-    let base = Model::from_bytes(&blob).unwrap().header().clone();
+    let base = Model::from_bytes(&blob).unwrap().header().decoded();
     let check = |edit: &dyn Fn(&mut Header), want: Error| {
         let mut h = base.clone();
         edit(&mut h);
@@ -671,7 +672,7 @@ fn largest_header_size() {
         output: sp,
     };
     assert_eq!(postcard::to_allocvec(&node).unwrap().len(), 130);
-    let h = Header {
+    let h: Header = Header {
         kind: ModelKind::Style {
             base_crc: u32::MAX,
             layer: u8::MAX,
@@ -702,7 +703,8 @@ fn constants_are_the_documented_ones() {
     assert_eq!(phasegate::STAGE, 255);
     assert_eq!(phasegate::graph::IO, 255);
     let blob = example_blob();
-    let header = postcard::to_allocvec(Model::from_bytes(&blob).unwrap().header()).unwrap();
+    let header =
+        postcard::to_allocvec(&Model::from_bytes(&blob).unwrap().header().decoded()).unwrap();
     assert_eq!(frame_raw(2, &header, &blob[64..]), blob);
 }
 
@@ -1152,7 +1154,7 @@ mod spec {
 fn the_spec_decoder_reads_the_example() {
     let blob = hex(EXAMPLE_HEX);
     let (header, payload) = spec::parse(&blob).unwrap();
-    assert_eq!(&header, Model::from_bytes(&blob).unwrap().header());
+    assert_eq!(header, Model::from_bytes(&blob).unwrap().header().decoded());
     assert_eq!(payload, &blob[64..]);
 }
 
@@ -1283,7 +1285,7 @@ fn the_spec_decoder_agrees_with_the_runtime_on_real_blobs() {
     for blob in &blobs {
         let model = Model::from_bytes(blob).unwrap();
         let (header, payload) = spec::parse(blob).unwrap();
-        assert_eq!(&header, model.header());
+        assert_eq!(&header, &model.header().decoded());
         assert_eq!(payload.len(), header.payload_len as usize);
         assert!(postcard::to_allocvec(&header).unwrap().len() > 127);
         // Sections are 4-aligned and in the encoder's order.

@@ -129,7 +129,7 @@ fn header_figures_count_the_factors() {
     let net = decompose(&dense, 20, &[1]);
     let (blob, _) = export(&net, None, &QuantOptions::default()).unwrap();
     let m = Model::from_bytes(&blob).unwrap();
-    let h = m.header();
+    let h = m.header().decoded();
     assert!(matches!(
         h.nodes[1].layer().unwrap().op,
         LayerOp::Cp { rank: 20, .. }
@@ -184,7 +184,7 @@ fn cp_inference_is_deterministic_and_phase_continuous() {
 /// Header, payload and the start of the payload of a blob.
 fn split(blob: &[u8]) -> (phasegate::Header, Vec<u8>) {
     let f = Framed::parse(blob, true).unwrap();
-    (f.header, f.payload.to_vec())
+    (f.header.decoded(), f.payload.to_vec())
 }
 
 fn reframe(mut header: phasegate::Header, payload: &[u8]) -> Vec<u8> {

@@ -454,7 +454,7 @@ fn damaged_style_blobs_are_refused() {
     .unwrap();
     let named = encode(&q).unwrap();
     let framed = phasegate::blob::Framed::parse(&named, true).unwrap();
-    let mut header = framed.header.clone();
+    let mut header = framed.header.decoded();
     let mut payload = framed.payload.to_vec();
     let phasegate::blob::ModelKind::Style { name, .. } = header.kind else {
         panic!("a style")

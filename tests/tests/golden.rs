@@ -32,7 +32,7 @@ fn the_bundles_cover_every_op_kind() {
     for case in host_sim::golden::CASES {
         let blob = std::fs::read(golden_root().join(case).join("model.blob")).unwrap();
         let model = phasegate::Model::from_bytes(&blob).unwrap();
-        for n in &model.header().nodes {
+        for n in model.header().nodes.iter() {
             let Some(l) = n.layer() else {
                 ops.insert("Softmax".to_string());
                 continue;

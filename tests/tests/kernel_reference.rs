@@ -189,7 +189,7 @@ fn blob(l: &OneLayer) -> Vec<u8> {
             len: d.out_dim,
         },
     };
-    let mut header = Header {
+    let mut header: Header = Header {
         kind: ModelKind::Pfnn,
         gating: l.gating,
         input_dim: d.in_dim,

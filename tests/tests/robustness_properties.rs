@@ -132,7 +132,7 @@ proptest! {
     ) {
         let b = cp_and_styles_cached();
         let blob = if which == 0 { &b.cp } else { &b.styles[which - 1] };
-        let mut header = phasegate::blob::Framed::parse(blob, true).unwrap().header;
+        let mut header = phasegate::blob::Framed::parse(blob, true).unwrap().header.decoded();
         let mut payload = raw_parts(blob).1;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         for _ in 0..density {

@@ -1,7 +1,7 @@
 //! Preamble, header CRC, padding and payload CRC: everything up to the
 //! point where the payload's bytes can be trusted.
 
-use crate::blob::Header;
+use crate::blob::{Header, NodeTable};
 use crate::error::{Error, Result};
 
 /// First four bytes of every blob.
@@ -22,8 +22,8 @@ pub fn crc32(bytes: &[u8]) -> u32 {
 
 /// A blob whose framing and checksums have been verified.
 pub struct Framed<'a> {
-    /// The decoded header.
-    pub header: Header,
+    /// The decoded header (its nodes still in the blob's bytes).
+    pub header: Header<NodeTable<'a>>,
     /// The payload bytes (CRC verified).
     pub payload: &'a [u8],
     /// Length of the whole blob.
@@ -78,7 +78,7 @@ fn read_preamble(bytes: &[u8]) -> Result<Preamble> {
 
 /// Checks the header CRC and decodes it; returns the header and where the
 /// payload starts.
-fn read_header(bytes: &[u8]) -> Result<(Header, usize)> {
+fn read_header(bytes: &[u8]) -> Result<(Header<NodeTable<'_>>, usize)> {
     let pre = read_preamble(bytes)?;
     let header_end = PREAMBLE_LEN + pre.header_len;
     let header_bytes = bytes
@@ -90,11 +90,7 @@ fn read_header(bytes: &[u8]) -> Result<(Header, usize)> {
     if digest.finalize() != pre.header_crc {
         return Err(Error::HeaderCorrupt);
     }
-    let (header, rest) =
-        postcard::take_from_bytes::<Header>(header_bytes).map_err(|_| Error::HeaderMalformed)?;
-    if !rest.is_empty() {
-        return Err(Error::HeaderMalformed);
-    }
+    let header = Header::parse(header_bytes)?;
     Ok((header, header_end.next_multiple_of(PAYLOAD_ALIGN)))
 }
 

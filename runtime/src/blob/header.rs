@@ -7,6 +7,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::error::{Error, Result};
+
 /// Most nodes a graph may hold (the PFNN has 3; OMG has 15 to 20).
 pub const MAX_NODES: usize = 24;
 
@@ -346,9 +348,17 @@ impl Node {
     }
 }
 
+/// The node table the exporter writes and host code edits.
+pub type NodeVec = heapless::Vec<Node, MAX_NODES>;
+
 /// The blob header: everything the runtime needs before touching the payload.
+///
+/// `N` is how the nodes are held: a [`NodeVec`] (the default; what the
+/// exporter builds and serialises) or, in a loaded blob, a [`NodeTable`]
+/// that leaves them in the blob's bytes and decodes one when it is used,
+/// so a loaded header costs a few dozen bytes of RAM, not 24 decoded nodes.
 #[derive(Clone, Debug, Eq, PartialEq, Serialize, Deserialize)]
-pub struct Header {
+pub struct Header<N = NodeVec> {
     /// Network family.
     pub kind: ModelKind,
     /// Phase gating of the nodes whose gate source is [`GateSource::Phase`].
@@ -358,7 +368,7 @@ pub struct Header {
     /// Width of the model's float output.
     pub output_dim: u16,
     /// Nodes in evaluation order: a node reads only the input and earlier nodes.
-    pub nodes: heapless::Vec<Node, MAX_NODES>,
+    pub nodes: N,
     /// Arena range of the quantised model input.
     pub input: Span,
     /// The model's output: a slice of a node's output.
@@ -379,7 +389,7 @@ pub struct Header {
 }
 
 #[cfg(feature = "defmt")]
-impl defmt::Format for Header {
+impl<N: Nodes> defmt::Format for Header<N> {
     fn format(&self, f: defmt::Formatter) {
         defmt::write!(
             f,
@@ -388,10 +398,275 @@ impl defmt::Format for Header {
             self.gating,
             self.input_dim,
             self.output_dim,
-            self.nodes.len(),
+            self.nodes.count(),
             self.ram_bytes,
             self.macs_per_frame,
             self.payload_len
         )
+    }
+}
+
+/// Read access to a header's nodes, however they are held.
+pub trait Nodes {
+    /// How many nodes there are.
+    fn count(&self) -> usize;
+
+    /// Node `i`, or `None` past the last one.
+    fn node(&self, i: usize) -> Option<Node>;
+
+    /// The nodes in evaluation order.
+    fn each(&self) -> impl Iterator<Item = Node> + '_ {
+        (0..self.count()).map_while(|i| self.node(i))
+    }
+}
+
+impl Nodes for [Node] {
+    fn count(&self) -> usize {
+        self.len()
+    }
+
+    fn node(&self, i: usize) -> Option<Node> {
+        self.get(i).cloned()
+    }
+}
+
+impl<const M: usize> Nodes for heapless::Vec<Node, M> {
+    fn count(&self) -> usize {
+        self.len()
+    }
+
+    fn node(&self, i: usize) -> Option<Node> {
+        self.get(i).cloned()
+    }
+}
+
+/// The nodes of a loaded header, left in their postcard bytes (zero-copy):
+/// [`Header::parse`] decodes each once to check it and keeps where it
+/// starts; [`Nodes::node`] decodes it again when it is used.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+pub struct NodeTable<'a> {
+    bytes: &'a [u8],
+    /// Where node `i` starts in `bytes`; entry `count` is the table's end.
+    starts: [u16; MAX_NODES + 1],
+    count: u8,
+}
+
+impl Nodes for NodeTable<'_> {
+    fn count(&self) -> usize {
+        usize::from(self.count)
+    }
+
+    fn node(&self, i: usize) -> Option<Node> {
+        if i >= self.count() {
+            return None;
+        }
+        let from = usize::from(*self.starts.get(i)?);
+        let to = usize::from(*self.starts.get(i + 1)?);
+        postcard::from_bytes(self.bytes.get(from..to)?).ok()
+    }
+}
+
+impl NodeTable<'_> {
+    /// How many nodes there are.
+    pub fn len(&self) -> usize {
+        self.count()
+    }
+
+    /// Whether there are none (a loaded model has at least one).
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// The nodes in evaluation order, each decoded as it is reached.
+    pub fn iter(&self) -> impl Iterator<Item = Node> + '_ {
+        self.each()
+    }
+
+    /// The nodes, decoded into a [`NodeVec`] (for host tools that edit them).
+    pub fn to_vec(&self) -> NodeVec {
+        self.each().collect()
+    }
+}
+
+/// The header fields before the node table, in wire order.
+type Prefix = (ModelKind, Gating, u16, u16);
+/// The header fields after the node table, in wire order.
+type Suffix = (Span, Slice, Section, Section, u32, u32, u32, u32);
+
+impl<'a> Header<NodeTable<'a>> {
+    /// Decodes the postcard bytes of a header (exactly one, nothing after
+    /// it), checking every node decodes but leaving them in `bytes`.
+    pub fn parse(bytes: &'a [u8]) -> Result<Self> {
+        let bad = |_: postcard::Error| Error::HeaderMalformed;
+        let (prefix, rest) = postcard::take_from_bytes::<Prefix>(bytes).map_err(bad)?;
+        // The node count is a varint; up to MAX_NODES (< 128) it is one byte.
+        let (&count, table) = rest.split_first().ok_or(Error::HeaderMalformed)?;
+        let count = usize::from(count);
+        if count > MAX_NODES {
+            return Err(Error::HeaderMalformed);
+        }
+        let mut starts = [0u16; MAX_NODES + 1];
+        let mut rest = table;
+        for i in 1..=count {
+            rest = postcard::take_from_bytes::<Node>(rest).map_err(bad)?.1;
+            if let Some(s) = starts.get_mut(i) {
+                *s = u16::try_from(table.len() - rest.len()).map_err(|_| Error::HeaderMalformed)?;
+            }
+        }
+        let table = table
+            .get(..table.len() - rest.len())
+            .ok_or(Error::HeaderMalformed)?;
+        let (suffix, rest) = postcard::take_from_bytes::<Suffix>(rest).map_err(bad)?;
+        if !rest.is_empty() {
+            return Err(Error::HeaderMalformed);
+        }
+        let (kind, gating, input_dim, output_dim) = prefix;
+        let (
+            input,
+            output,
+            input_stage,
+            output_stage,
+            ram_bytes,
+            macs_per_frame,
+            payload_len,
+            payload_crc,
+        ) = suffix;
+        Ok(Header {
+            kind,
+            gating,
+            input_dim,
+            output_dim,
+            nodes: NodeTable {
+                bytes: table,
+                starts,
+                count: count as u8,
+            },
+            input,
+            output,
+            input_stage,
+            output_stage,
+            ram_bytes,
+            macs_per_frame,
+            payload_len,
+            payload_crc,
+        })
+    }
+
+    /// The same header with its nodes decoded (for host tools that edit
+    /// or re-encode it).
+    pub fn decoded(&self) -> Header {
+        Header {
+            kind: self.kind,
+            gating: self.gating,
+            input_dim: self.input_dim,
+            output_dim: self.output_dim,
+            nodes: self.nodes.to_vec(),
+            input: self.input,
+            output: self.output,
+            input_stage: self.input_stage,
+            output_stage: self.output_stage,
+            ram_bytes: self.ram_bytes,
+            macs_per_frame: self.macs_per_frame,
+            payload_len: self.payload_len,
+            payload_crc: self.payload_crc,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn node(i: u16) -> Node {
+        Node {
+            op: NodeOp::Softmax(SoftmaxDesc {
+                experts: 1 + i % 8,
+                frac: (i % 16) as u8,
+            }),
+            inputs: (0..1 + i % 4)
+                .map(|k| Slice {
+                    source: if k == 0 {
+                        Source::Input
+                    } else {
+                        Source::Node(k as u8)
+                    },
+                    start: 300 * i + k,
+                    len: 7 * k + 1,
+                })
+                .collect(),
+            gate: GateSource::None,
+            input: Span {
+                offset: 200 * i,
+                len: i,
+            },
+            scratch: Span::default(),
+            output: Span { offset: i, len: 0 },
+        }
+    }
+
+    fn header(nodes: usize) -> Header {
+        Header {
+            kind: ModelKind::Graph,
+            gating: Gating::CatmullRom { points: 4 },
+            input_dim: 342,
+            output_dim: 311,
+            nodes: (0..nodes as u16).map(node).collect(),
+            input: Span {
+                offset: 0,
+                len: 342,
+            },
+            output: Slice {
+                source: Source::Node(1),
+                start: 0,
+                len: 311,
+            },
+            input_stage: Section { offset: 0, len: 8 },
+            output_stage: Section { offset: 8, len: 16 },
+            ram_bytes: 70_000,
+            macs_per_frame: 1 << 30,
+            payload_len: 123_456,
+            payload_crc: 0xdead_beef,
+        }
+    }
+
+    #[test]
+    fn the_table_decodes_what_the_exporter_wrote() {
+        for n in [0, 1, 3, MAX_NODES] {
+            let h = header(n);
+            let bytes = postcard::to_allocvec(&h).unwrap();
+            let view = Header::parse(&bytes).unwrap();
+            assert_eq!(view.nodes.len(), n);
+            assert_eq!(view.decoded(), h);
+            for i in 0..n {
+                assert_eq!(view.nodes.node(i), Some(h.nodes[i].clone()));
+            }
+            assert_eq!(view.nodes.node(n), None);
+        }
+    }
+
+    #[test]
+    fn a_damaged_table_is_refused_at_parse() {
+        let bytes = postcard::to_allocvec(&header(3)).unwrap();
+        for cut in 0..bytes.len() {
+            assert_eq!(
+                Header::parse(&bytes[..cut]),
+                Err(Error::HeaderMalformed),
+                "{cut}"
+            );
+        }
+        let mut long = bytes.clone();
+        long.push(0);
+        assert_eq!(Header::parse(&long), Err(Error::HeaderMalformed));
+        // More nodes than MAX_NODES: the count follows the four leading fields.
+        let mut h = header(1);
+        let bytes = postcard::to_allocvec(&h).unwrap();
+        let prefix: Prefix = (h.kind, h.gating, h.input_dim, h.output_dim);
+        let at = postcard::to_allocvec(&prefix).unwrap().len();
+        assert_eq!(bytes[at], 1);
+        let mut many = bytes.clone();
+        many[at] = (MAX_NODES + 1) as u8;
+        assert_eq!(Header::parse(&many), Err(Error::HeaderMalformed));
+        h.nodes.clear();
+        assert!(Header::parse(&postcard::to_allocvec(&h).unwrap()).is_ok());
     }
 }

@@ -19,7 +19,7 @@ pub use framing::{
 };
 pub use header::{
     AccWidth, Activation, GateSource, Gating, Header, LayerDesc, LayerOp, ModelKind, Node, NodeOp,
-    Section, Slice, SoftmaxDesc, Source, Span, WeightFormat, MAX_NODES, MAX_NODE_INPUTS,
-    MAX_STYLE_NAME,
+    NodeTable, NodeVec, Nodes, Section, Slice, SoftmaxDesc, Source, Span, WeightFormat, MAX_NODES,
+    MAX_NODE_INPUTS, MAX_STYLE_NAME,
 };
 pub use records::{Requant, REQUANT_RECORD_LEN, STAGE_RECORD_LEN};

@@ -412,7 +412,7 @@ pub(crate) fn blob(
         s
     };
     let input = next(usize::from(first.in_dim));
-    let mut nodes = heapless::Vec::new();
+    let mut nodes = crate::blob::NodeVec::new();
     let mut prev = (Source::Input, input);
     for (i, d) in descs.iter().enumerate() {
         let scratch = next(<Layer<'_> as GatedOp<'_>>::scratch(d));

@@ -28,7 +28,8 @@ pub use fixed::types::U1F15 as BlendWeight;
 use fixed::types::U1F15;
 
 use crate::blob::{
-    Activation, Framed, GateSource, Gating, ModelKind, NodeOp, Section, Source, MAX_STYLE_NAME,
+    Activation, Framed, GateSource, Gating, ModelKind, NodeOp, Nodes, Section, Source,
+    MAX_STYLE_NAME,
 };
 use crate::error::{Error, Result};
 use crate::fixed::gate::ONE;
@@ -121,8 +122,11 @@ impl<'a> Style<'a> {
         };
         validate_gating(&header.gating)?;
         check_structure(&header)?;
-        let node = match header.nodes.as_slice() {
-            [one] => one,
+        let node = match header.nodes.count() {
+            1 => header
+                .nodes
+                .node(0)
+                .ok_or(Error::GraphInvalid { node: 0 })?,
             _ => return Err(Error::UnsupportedParameter { layer: STAGE }),
         };
         let (NodeOp::Layer(desc), [input]) = (&node.op, node.inputs.as_slice()) else {
@@ -131,7 +135,7 @@ impl<'a> Style<'a> {
         if input.source != Source::Input || matches!(node.gate, GateSource::Node(_)) {
             return Err(Error::UnsupportedParameter { layer: 0 });
         }
-        if desc.experts != node_gating(&header.gating, &header.nodes, node).experts() {
+        if desc.experts != node_gating(&header.gating, &header.nodes, &node).experts() {
             return Err(Error::GatingMismatch { layer: 0 });
         }
         if desc.activation != Activation::Identity {
@@ -147,7 +151,7 @@ impl<'a> Style<'a> {
         if u64::from(header.macs_per_frame) != macs(&header) {
             return Err(Error::HeaderInconsistent);
         }
-        kernel.check(&node_gating(&header.gating, &header.nodes, node))?;
+        kernel.check(&node_gating(&header.gating, &header.nodes, &node))?;
         let gate = node.gate;
         Ok(Style {
             kernel,

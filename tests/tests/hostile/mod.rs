@@ -163,7 +163,7 @@ pub struct Parts {
 
 impl Parts {
     pub fn of(blob: &[u8]) -> Parts {
-        let header = Model::from_bytes(blob).unwrap().header().clone();
+        let header = Model::from_bytes(blob).unwrap().header().decoded();
         let payload = blob[blob.len() - header.payload_len as usize..].to_vec();
         Parts { header, payload }
     }
