@@ -666,6 +666,10 @@ mod tests {
         let mut many = bytes.clone();
         many[at] = (MAX_NODES + 1) as u8;
         assert_eq!(Header::parse(&many), Err(Error::HeaderMalformed));
+        // The same count of 1 as a two-byte varint.
+        let mut long_count = bytes.clone();
+        long_count.splice(at..=at, [0x81, 0x00]);
+        assert_eq!(Header::parse(&long_count), Err(Error::HeaderMalformed));
         h.nodes.clear();
         assert!(Header::parse(&postcard::to_allocvec(&h).unwrap()).is_ok());
     }
