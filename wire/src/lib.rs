@@ -4,7 +4,9 @@
 //!
 //! Only `core` and `phasegate`'s [`Mix`] type, no `unsafe`, no allocation.
 //! All integers and floats are little-endian. Specified in
-//! `docs/firmware.md`.
+//! `docs/firmware.md`, which also says why these are fixed-length records
+//! rather than postcard: frame `i` is read in place at a fixed offset, and
+//! a run cut short shows in the output file's length.
 //!
 //! Host -> firmware: the **input image** (version 2), loaded raw at the start
 //! of the HOSTIO region (memory.x) with `-device loader,file=...,force-raw=on`:
