@@ -16,6 +16,7 @@ pub mod gating;
 pub mod graph;
 pub mod json;
 pub mod pfnn;
+pub mod residual;
 
 use ndarray::{Array1, Array2, Axis};
 
@@ -23,6 +24,7 @@ pub use crate::ops::{CpLayer, DiagLayer, ExpertLayer, NetLayer};
 pub use gating::{wrap_phase, GatingMode, ParseGatingModeError};
 pub use graph::{Graph, GraphNode, GraphOp, GraphTrace};
 pub use phasegate::blob::{GateSource, Slice, Source};
+pub use residual::Adapter;
 
 /// How a [`Net`]'s layers are connected.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -42,17 +44,6 @@ pub fn elu(x: f64) -> f64 {
     } else {
         x.exp_m1()
     }
-}
-
-/// A residual adapter: `op` adds to the pre-activation of base layer `layer`
-/// and reads that layer's input (the paper's eq. 4 with `layer = 1`).
-#[derive(Clone, Debug, PartialEq)]
-pub struct Adapter {
-    /// Base layer it sits beside.
-    pub layer: usize,
-    /// Its weights (same experts as the base, or one expert for an
-    /// ungated adapter).
-    pub op: NetLayer,
 }
 
 /// Everything a forward pass computed.
