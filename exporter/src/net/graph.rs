@@ -86,6 +86,11 @@ pub fn softmax(z: &Array1<f64>) -> Array1<f64> {
 }
 
 impl Graph {
+    /// The index of the node named `name`.
+    pub fn node(&self, name: &str) -> Option<usize> {
+        self.nodes.iter().position(|n| n.name == name)
+    }
+
     /// Experts of the phase-gated layer nodes (0 when none is).
     pub fn phase_experts(&self, layers: &[NetLayer]) -> usize {
         self.nodes

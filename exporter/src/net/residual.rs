@@ -3,9 +3,9 @@
 //! beside it becomes a residual addition,
 //!
 //! ```text
-//! layer{l}           = base layer l of its input, no activation
+//! layer{l}            = base layer l of its input, no activation
 //! layer{l}.adapter{s} = adapter s of the same input, no activation
-//! layer{l}.residual  = act(1 * layer{l} + sum_s w_s * layer{l}.adapter{s})
+//! layer{l}.residual   = act(1 * layer{l} + sum_s w_s * layer{l}.adapter{s})
 //! ```
 //!
 //! (the paper's eq. 4), and every other layer a plain layer node. The
@@ -29,6 +29,16 @@ pub struct Adapter {
     pub op: NetLayer,
 }
 
+/// The name of the node of the `s`-th adapter beside base layer `layer`.
+pub fn adapter_node_name(layer: usize, s: usize) -> String {
+    format!("layer{layer}.adapter{s}")
+}
+
+/// The name of the residual node of base layer `layer`.
+pub fn residual_node_name(layer: usize) -> String {
+    format!("layer{layer}.residual")
+}
+
 /// All `width` values of `source`.
 fn whole(source: Source, width: usize) -> Result<Slice> {
     let Ok(len) = u16::try_from(width) else {
@@ -41,21 +51,62 @@ fn whole(source: Source, width: usize) -> Result<Slice> {
     })
 }
 
-/// Appends `node` and returns its whole output, `width` wide.
-fn push(nodes: &mut Vec<GraphNode>, node: GraphNode, width: usize) -> Result<Slice> {
-    let Ok(j) = u8::try_from(nodes.len()) else {
-        bail!("more than 256 nodes: too many adapters for one graph");
-    };
-    nodes.push(node);
-    whole(Source::Node(j), width)
-}
-
 fn layer_node(name: String, layer: usize, elu: bool, input: Slice, gate: GateSource) -> GraphNode {
     GraphNode {
         name,
         op: GraphOp::Layer { layer, elu },
         inputs: vec![input],
         gate,
+    }
+}
+
+/// A graph under construction and the layers its nodes apply.
+struct Builder {
+    layers: Vec<NetLayer>,
+    nodes: Vec<GraphNode>,
+}
+
+impl Builder {
+    /// Appends `node` and returns its whole output, `width` wide.
+    fn push(&mut self, node: GraphNode, width: usize) -> Result<Slice> {
+        let Ok(j) = u8::try_from(self.nodes.len()) else {
+            bail!("more than 256 nodes: too many adapters for one graph");
+        };
+        self.nodes.push(node);
+        whole(Source::Node(j), width)
+    }
+
+    /// Appends the nodes of `adapters` beside base layer `l` (whose node
+    /// reads `input` and gives `base`, `width` wide) and their residual
+    /// node; returns the residual node's output.
+    fn beside(
+        &mut self,
+        l: usize,
+        act: bool,
+        (input, base, width): (Slice, Slice, usize),
+        adapters: &[(&Adapter, f64)],
+    ) -> Result<Slice> {
+        let mut terms = vec![base];
+        let mut weights = vec![1.0];
+        for (s, (a, w)) in adapters.iter().enumerate() {
+            self.layers.push(a.op.clone());
+            let gate = if a.op.experts() == 1 {
+                GateSource::None
+            } else {
+                GateSource::Phase
+            };
+            let name = adapter_node_name(l, s);
+            let node = layer_node(name, self.layers.len() - 1, false, input, gate);
+            terms.push(self.push(node, width)?);
+            weights.push(*w);
+        }
+        let sum = GraphNode {
+            name: residual_node_name(l),
+            op: GraphOp::Residual { weights, elu: act },
+            inputs: terms,
+            gate: GateSource::None,
+        };
+        self.push(sum, width)
     }
 }
 
@@ -76,8 +127,10 @@ impl Net {
         for (a, _) in adapters {
             self.check_fits(a)?;
         }
-        let mut layers = self.layers.clone();
-        let mut nodes = Vec::new();
+        let mut b = Builder {
+            layers: self.layers.clone(),
+            nodes: Vec::new(),
+        };
         let mut h = whole(Source::Input, self.input_dim())?;
         let last = self.layers.len().saturating_sub(1);
         for (l, layer) in self.layers.iter().enumerate() {
@@ -86,45 +139,15 @@ impl Net {
                 .copied()
                 .filter(|(a, _)| a.layer == l)
                 .collect();
-            let (input, width) = (h, layer.out_dim());
-            let act = l != last;
-            let base = layer_node(
-                format!("layer{l}"),
-                l,
-                act && beside.is_empty(),
-                input,
-                GateSource::Phase,
-            );
-            h = push(&mut nodes, base, width)?;
-            if beside.is_empty() {
-                continue;
+            let (input, width, act) = (h, layer.out_dim(), l != last);
+            // With adapters the base node gives its pre-activation and the
+            // residual node applies the activation to the sum.
+            let elu = act && beside.is_empty();
+            let base = layer_node(format!("layer{l}"), l, elu, input, GateSource::Phase);
+            h = b.push(base, width)?;
+            if !beside.is_empty() {
+                h = b.beside(l, act, (input, h, width), &beside)?;
             }
-            let mut terms = vec![h];
-            let mut weights = vec![1.0];
-            for (s, (a, w)) in beside.into_iter().enumerate() {
-                layers.push(a.op.clone());
-                let gate = if a.op.experts() == 1 {
-                    GateSource::None
-                } else {
-                    GateSource::Phase
-                };
-                let node = layer_node(
-                    format!("layer{l}.adapter{s}"),
-                    layers.len() - 1,
-                    false,
-                    input,
-                    gate,
-                );
-                terms.push(push(&mut nodes, node, width)?);
-                weights.push(w);
-            }
-            let sum = GraphNode {
-                name: format!("layer{l}.residual"),
-                op: GraphOp::Residual { weights, elu: act },
-                inputs: terms,
-                gate: GateSource::None,
-            };
-            h = push(&mut nodes, sum, width)?;
         }
         Ok(Net {
             mode: self.mode,
@@ -132,8 +155,11 @@ impl Net {
             xstd: self.xstd.clone(),
             ymean: self.ymean.clone(),
             ystd: self.ystd.clone(),
-            layers,
-            wiring: Wiring::Graph(Graph { nodes, output: h }),
+            layers: b.layers,
+            wiring: Wiring::Graph(Graph {
+                nodes: b.nodes,
+                output: h,
+            }),
         })
     }
 
@@ -276,7 +302,6 @@ mod tests {
                 let p = rng.gen_range(0.0..std::f64::consts::TAU);
                 let want = adapter_loop(&net, &x, p, mix);
                 let got = styled.forward(&x, p);
-                assert_eq!(want, net.forward_trace(&x, p, mix).y);
                 for (g, w) in got.iter().zip(&want) {
                     assert!((g - w).abs() <= 1e-12, "{got:?} vs {want:?}");
                 }
@@ -341,6 +366,27 @@ mod tests {
             }
         );
         assert_eq!(graph.nodes[4].inputs[0].source, Source::Node(3));
+    }
+
+    /// The blob's graph has no residual node: a styled net is exported as
+    /// a base blob and style blobs, never as one model blob or description.
+    #[test]
+    fn a_styled_net_is_refused_as_a_model_blob_and_a_description() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let net = chain(&mut rng);
+        let ads = adapters(&mut rng);
+        // Beside layer 0, so that its residual node comes before the CP
+        // layer, which descriptions cannot hold either.
+        let styled = net.with_adapters(&[(&ads[3], 1.0)]).expect("fits");
+        let opts = crate::quantise::QuantOptions::default();
+        let e = crate::export::export(&styled, None, &opts).expect_err("a residual node");
+        assert!(e.to_string().contains("residual addition"), "{e}");
+        let dir = tempfile::tempdir().expect("a temporary directory");
+        let (json, weights) = (dir.path().join("g.json"), dir.path().join("g.npz"));
+        let e =
+            crate::net::json::write_graph(&styled, &json, &weights).expect_err("a residual node");
+        assert!(e.to_string().contains("residual addition"), "{e}");
+        assert!(!json.exists() && !weights.exists());
     }
 
     #[test]
