@@ -10,7 +10,7 @@ use std::f64::consts::TAU;
 
 use ndarray::Array1;
 
-use crate::net::{Adapter, Net};
+use crate::net::Net;
 
 /// Raw inputs (model units) and phases (radians).
 #[derive(Clone, Debug, Default)]
@@ -99,9 +99,8 @@ pub fn calibration_inputs(net: &Net, opts: &crate::quantise::QuantOptions) -> Sa
     )
 }
 
-/// Runs `net` (with `adapters` at their mixing weights) on every sample
-/// and records the ranges.
-pub fn calibrate(net: &Net, samples: &Samples, adapters: &[(&Adapter, f64)]) -> Ranges {
+/// Runs the chain `net` on every sample and records the ranges.
+pub fn calibrate(net: &Net, samples: &Samples) -> Ranges {
     let n = net.layers.len();
     let mut r = Ranges {
         rows: vec![Vec::new(); n],
@@ -111,7 +110,7 @@ pub fn calibrate(net: &Net, samples: &Samples, adapters: &[(&Adapter, f64)]) -> 
     };
     let count = samples.inputs.len().max(1) as f64;
     for (x, &p) in samples.inputs.iter().zip(&samples.phases) {
-        let t = net.forward_trace(x, p, adapters);
+        let t = net.forward_trace(x, p);
         for l in 0..n {
             max_into(&mut r.rows[l], &t.pre[l]);
             ms_into(&mut r.input_ms[l], &t.inputs[l], count);

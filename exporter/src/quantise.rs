@@ -576,7 +576,7 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
     }
     let gating = gating_for(net.mode, net.experts())?;
     let samples = crate::calibrate::calibration_inputs(net, opts);
-    let ranges = calibrate(net, &samples, &[]);
+    let ranges = calibrate(net, &samples);
     let input_frac = frac_for(opts.input_range_sigma, 1.0, 15);
 
     // Each node's input columns get their own scale (integer units per

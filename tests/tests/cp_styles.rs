@@ -252,10 +252,11 @@ fn blending_two_styles_interpolates_their_adapters() {
     let (ym, ys) = (f.net.ymean.to_vec(), f.net.ystd.to_vec());
     for w in [0.25, 0.5, 0.8] {
         let fixed = run_styled(&f.blob, &[&sa, &sb], &blend(w), &xs, &ps).unwrap();
+        let styled = f.net.with_adapters(&[(&a, 1.0 - w), (&b, w)]).unwrap();
         let float: Vec<Vec<f64>> = xs
             .iter()
             .zip(&ps)
-            .map(|(x, &p)| f.net.forward_trace(x, p, &[(&a, 1.0 - w), (&b, w)]).y)
+            .map(|(x, &p)| styled.forward(x, p))
             .collect();
         let e = exporter::cp::report::output_error(&fixed, &float, &ym, &ys);
         let spread = exporter::cp::report::output_error(&one_a, &one_b, &ym, &ys);

@@ -624,7 +624,7 @@ pub fn teacher_dataset(dense: &Net, net: &Net, xs: &[Vec<f64>], phases: &[f64]) 
     let (x, g) = inputs_and_gates(net, xs, phases);
     let mut y = Array2::zeros((xs.len(), dense.output_dim()));
     for (i, (raw, &p)) in xs.iter().zip(phases).enumerate() {
-        let t = dense.forward_trace(raw, p, &[]);
+        let t = dense.forward_trace(raw, p);
         let y_norm = t.pre.last().map(|p| p.to_vec()).unwrap_or_default();
         for (j, v) in y_norm.iter().enumerate() {
             y[(i, j)] = *v;
@@ -909,7 +909,7 @@ mod tests {
             .collect();
         let (x, g) = inputs_and_gates(&net, &xs, &ps);
         let target = tiny(&mut rng);
-        let y = target.outputs(&xs, &ps, &[]);
+        let y = target.outputs(&xs, &ps);
         let data = Dataset { x, g, y };
         let rep = train(
             &mut net,

@@ -2,8 +2,12 @@
 //! concatenation of slices of the normalised input and of earlier nodes'
 //! outputs. A layer node applies one of the net's layers (gated by nothing,
 //! the phase, or a softmax gate node) and optionally ELU; a softmax gate
-//! node turns its input (the logits) into expert coefficients. The blob's
-//! graph (`docs/blob-format.md`) mirrors it node for node.
+//! node turns its input (the logits) into expert coefficients; a residual
+//! node adds its input slices, each at a weight, and optionally applies ELU
+//! (style adapters beside a layer, [`Net::with_adapters`]). The blob's
+//! graph (`docs/blob-format.md`) mirrors layer and softmax nodes node for
+//! node; a residual addition reaches the device as a style blob beside its
+//! base layer (`docs/cp-and-styles.md`).
 
 use ndarray::{concatenate, Array1, Axis};
 
@@ -22,6 +26,15 @@ pub enum GraphOp {
     },
     /// Softmax of the node's input, one coefficient per expert.
     Softmax,
+    /// A residual addition: `sum_i weights[i] * input_i` over the node's
+    /// input slices (all of one width, added, not concatenated), then ELU
+    /// when `elu`.
+    Residual {
+        /// One weight per input slice.
+        weights: Vec<f64>,
+        /// ELU after the sum (else identity).
+        elu: bool,
+    },
 }
 
 /// One node: a name (for errors and reports), its op, the slices it
@@ -53,7 +66,8 @@ pub struct Graph {
 pub struct GraphTrace {
     /// Each node's concatenated input.
     pub inputs: Vec<Array1<f64>>,
-    /// Each layer node's pre-activation (empty for softmax gates).
+    /// Each layer or residual node's pre-activation (empty for softmax
+    /// gates).
     pub pre: Vec<Array1<f64>>,
     /// Each node's output (the softmax coefficients for a gate).
     pub out: Vec<Array1<f64>>,
@@ -72,6 +86,11 @@ pub fn softmax(z: &Array1<f64>) -> Array1<f64> {
 }
 
 impl Graph {
+    /// The index of the node named `name`.
+    pub fn node(&self, name: &str) -> Option<usize> {
+        self.nodes.iter().position(|n| n.name == name)
+    }
+
     /// Experts of the phase-gated layer nodes (0 when none is).
     pub fn phase_experts(&self, layers: &[NetLayer]) -> usize {
         self.nodes
@@ -98,6 +117,10 @@ impl Graph {
                     .iter()
                     .map(|s| usize::from(s.len))
                     .sum(),
+                Some(GraphOp::Residual { .. }) => self.nodes[usize::from(j)]
+                    .inputs
+                    .first()
+                    .map_or(0, |s| usize::from(s.len)),
                 None => 0,
             },
         }
@@ -108,6 +131,21 @@ fn take(v: &Array1<f64>, s: &Slice) -> Array1<f64> {
     let start = usize::from(s.start);
     v.slice(ndarray::s![start..start + usize::from(s.len)])
         .to_owned()
+}
+
+/// `sum_i weights[i] * parts[i]`, summed left to right from the first
+/// part scaled (not from zero), so that a base pre-activation at weight 1
+/// keeps its exact value, signed zeros included.
+fn weighted_sum(parts: &[Array1<f64>], weights: &[f64]) -> Array1<f64> {
+    let mut pairs = parts.iter().zip(weights);
+    let Some((first, &w0)) = pairs.next() else {
+        return Array1::zeros(0);
+    };
+    let mut sum = first.mapv(|v| w0 * v);
+    for (p, &w) in pairs {
+        sum.scaled_add(w, p);
+    }
+    sum
 }
 
 impl Net {
@@ -138,6 +176,11 @@ impl Net {
             let h = concatenate(Axis(0), &views).expect("slices concatenate");
             let (pre, out, mid) = match &n.op {
                 GraphOp::Softmax => (Array1::zeros(0), softmax(&h), None),
+                GraphOp::Residual { weights, elu: act } => {
+                    let p = weighted_sum(&parts, weights);
+                    let o = if *act { p.mapv(elu) } else { p.clone() };
+                    (p, o, None)
+                }
                 GraphOp::Layer { layer, elu: act } => {
                     let gate: Vec<(usize, f64)> = match n.gate {
                         GateSource::None => vec![(0, 1.0)],

@@ -427,6 +427,11 @@ pub fn write_graph(net: &Net, json: &Path, weights: &Path) -> Result<()> {
         };
         let (op, activation) = match &n.op {
             GraphOp::Softmax => ("softmax", None),
+            GraphOp::Residual { .. } => bail!(
+                "node {:?}: a residual addition (style adapters) has no place in a graph \
+                 description; adapters are written with write_adapter and exported as style blobs",
+                n.name
+            ),
             GraphOp::Layer { layer, elu } => {
                 let NetLayer::Dense(d) = &net.layers[*layer] else {
                     bail!("node {:?}: only dense layers are written", n.name);

@@ -1,14 +1,17 @@
 //! The one network description of the exporter: a [`Net`] is what every
 //! importer produces (PFNN directories and `.npz`, CP factors, CP-ALS of
-//! dense weights, style adapters beside it), what the float reference runs
-//! and what the one quantiser ([`crate::quantise`]) turns into a blob.
+//! dense weights, a chain with style adapters beside it), what the float
+//! reference runs and what the one quantiser ([`crate::quantise`]) turns
+//! into a blob.
 //!
 //! A `Net` holds its layers ([`NetLayer`]) and how they are wired
 //! ([`Wiring`]): a chain sharing the phase gate with ELU after every layer
-//! but the last (PFNN, and every network the PFNN-shaped importers make,
-//! plus residual adapters beside a layer), or a graph of layer and softmax
-//! gate nodes whose inputs are slices of the input and of earlier nodes
-//! (OMG-shaped networks, imported from a JSON description, [`json`]).
+//! but the last (PFNN, and every network the PFNN-shaped importers make),
+//! or a graph of layer, softmax gate and residual nodes whose inputs are
+//! slices of the input and of earlier nodes (OMG-shaped networks, imported
+//! from a JSON description, [`json`]; a chain with style adapters,
+//! [`Net::with_adapters`], whose adapters are layer nodes beside their base
+//! layer and whose additions are residual nodes, [`residual`]).
 //!
 //! Everything is `f64`.
 
@@ -16,6 +19,7 @@ pub mod gating;
 pub mod graph;
 pub mod json;
 pub mod pfnn;
+pub mod residual;
 
 use ndarray::{Array1, Array2, Axis};
 
@@ -23,6 +27,7 @@ pub use crate::ops::{CpLayer, DiagLayer, ExpertLayer, NetLayer};
 pub use gating::{wrap_phase, GatingMode, ParseGatingModeError};
 pub use graph::{Graph, GraphNode, GraphOp, GraphTrace};
 pub use phasegate::blob::{GateSource, Slice, Source};
+pub use residual::Adapter;
 
 /// How a [`Net`]'s layers are connected.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -31,7 +36,7 @@ pub enum Wiring {
     /// input), every layer phase-gated, ELU after all but the last.
     #[default]
     Chain,
-    /// Any graph of layer and softmax gate nodes.
+    /// Any graph of layer, softmax gate and residual nodes.
     Graph(Graph),
 }
 
@@ -44,17 +49,6 @@ pub fn elu(x: f64) -> f64 {
     }
 }
 
-/// A residual adapter: `op` adds to the pre-activation of base layer `layer`
-/// and reads that layer's input (the paper's eq. 4 with `layer = 1`).
-#[derive(Clone, Debug, PartialEq)]
-pub struct Adapter {
-    /// Base layer it sits beside.
-    pub layer: usize,
-    /// Its weights (same experts as the base, or one expert for an
-    /// ungated adapter).
-    pub op: NetLayer,
-}
-
 /// Everything a forward pass computed.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NetTrace {
@@ -62,7 +56,7 @@ pub struct NetTrace {
     pub gate: Vec<(usize, f64)>,
     /// Input of each layer (normalised input for layer 0).
     pub inputs: Vec<Array1<f64>>,
-    /// Pre-activation of each layer, adapters included.
+    /// Pre-activation of each layer.
     pub pre: Vec<Array1<f64>>,
     /// Middle vectors of CP layers.
     pub mids: Vec<Option<Array1<f64>>>,
@@ -116,24 +110,18 @@ impl Net {
     /// Raw model units in and out.
     pub fn forward(&self, x_raw: &[f64], phase_rad: f64) -> Vec<f64> {
         match &self.wiring {
-            Wiring::Chain => self.forward_trace(x_raw, phase_rad, &[]).y,
+            Wiring::Chain => self.forward_trace(x_raw, phase_rad).y,
             Wiring::Graph(g) => self.graph_trace(g, x_raw, phase_rad).y,
         }
     }
 
-    /// The forward pass of a chain with `adapters`, each with its mixing
-    /// weight: the adapters of layer `l` add `sum_s w_s op_s(x_l)` to its
-    /// pre-activation.
+    /// The forward pass of a chain, every layer's vectors kept (a chain
+    /// with adapters is a graph: [`Net::with_adapters`]).
     ///
     /// # Panics
     /// If `x_raw` has the wrong length, or the net is a graph (see
     /// [`Net::graph_trace`]).
-    pub fn forward_trace(
-        &self,
-        x_raw: &[f64],
-        phase_rad: f64,
-        adapters: &[(&Adapter, f64)],
-    ) -> NetTrace {
+    pub fn forward_trace(&self, x_raw: &[f64], phase_rad: f64) -> NetTrace {
         assert_eq!(
             x_raw.len(),
             self.input_dim(),
@@ -150,15 +138,7 @@ impl Net {
         let last = self.layers.len().saturating_sub(1);
         let (mut inputs, mut pre, mut mids) = (Vec::new(), Vec::new(), Vec::new());
         for (l, layer) in self.layers.iter().enumerate() {
-            let (mut p, mid) = layer.apply_mid(&gate, &h);
-            for (ad, w) in adapters.iter().filter(|(a, _)| a.layer == l) {
-                let g = if ad.op.experts() == 1 {
-                    vec![(0, 1.0)]
-                } else {
-                    gate.clone()
-                };
-                p.scaled_add(*w, &ad.op.apply(&g, &h));
-            }
+            let (p, mid) = layer.apply_mid(&gate, &h);
             inputs.push(h);
             h = if l == last { p.clone() } else { p.mapv(elu) };
             pre.push(p);
@@ -175,22 +155,11 @@ impl Net {
     }
 
     /// Normalised outputs of many samples, as a matrix (rows = samples).
-    pub fn outputs(
-        &self,
-        xs: &[Vec<f64>],
-        phases: &[f64],
-        adapters: &[(&Adapter, f64)],
-    ) -> Array2<f64> {
+    pub fn outputs(&self, xs: &[Vec<f64>], phases: &[f64]) -> Array2<f64> {
         let rows: Vec<Array1<f64>> = xs
             .iter()
             .zip(phases)
-            .map(|(x, &p)| {
-                Array1::from(if adapters.is_empty() {
-                    self.forward(x, p)
-                } else {
-                    self.forward_trace(x, p, adapters).y
-                })
-            })
+            .map(|(x, &p)| Array1::from(self.forward(x, p)))
             .collect();
         let views: Vec<_> = rows.iter().map(|r| r.view()).collect();
         ndarray::stack(Axis(0), &views).unwrap_or_else(|_| Array2::zeros((0, self.output_dim())))

@@ -282,7 +282,7 @@ mod tests {
         let t = random_tables(SMALL, 8);
         let (net, _) = Net::from_pfnn_tables(&t, GatingMode::Cubic);
         let x = random_input(&net, &mut ChaCha8Rng::seed_from_u64(80));
-        let tr = net.forward_trace(&x, 1.234, &[]);
+        let tr = net.forward_trace(&x, 1.234);
         assert_eq!(tr.y, net.forward(&x, 1.234));
         assert_eq!(tr.gate, net.gate(1.234));
         assert_eq!(tr.pre[0].len(), SMALL.hidden);

@@ -130,6 +130,15 @@ pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quant
                 experts: n.inputs.iter().map(|s| s.len).sum(),
                 frac: softmax_frac[&i],
             }),
+            // The blob's graph has no addition: the runtime adds a style's
+            // output to its base layer's pre-activation itself.
+            GraphOp::Residual { .. } => {
+                return Err(QuantError::Invalid(format!(
+                    "node {:?}: a residual addition is exported as style blobs beside \
+                     the base model's blob (exporter style), not in a model blob",
+                    n.name
+                )))
+            }
             GraphOp::Layer { layer, elu } => {
                 let l = &net.layers[*layer];
                 let in_scales: Vec<f64> = n

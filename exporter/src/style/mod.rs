@@ -15,6 +15,11 @@
 //! So `L` must have a hidden layer on both sides (`1 <= L`, layers `L - 1`
 //! and `L` with ELU): the paper's position, beside the middle layer of the
 //! PFNN, is `L = 1`.
+//!
+//! The float reference of a styled run is the base chain with the adapter
+//! as nodes of its graph ([`Net::with_adapters`]): the adapter a layer node
+//! reading base layer `L`'s input, a residual node adding it to `L`'s
+//! pre-activation, as the runtime adds the style's output.
 
 pub mod cli;
 
@@ -23,11 +28,12 @@ use phasegate::blob::{Activation, Gating, Requant, REQUANT_RECORD_LEN};
 use phasegate::{Mix, Model, Phase, Runtime, Style};
 use serde::Serialize;
 
-use crate::calibrate::normal_inputs;
+use crate::calibrate::{max_into, ms_into, normal_inputs, Samples};
 use crate::cp::report::{output_error, OutputError};
 use crate::encode::{encode, QKind, QModel, Wiring};
 use crate::export::format_name;
-use crate::net::{Adapter, Net, NetLayer};
+use crate::net::residual::{adapter_node_name, residual_node_name};
+use crate::net::{Adapter, Graph, Net, NetLayer};
 use crate::quantise::LayerSpec;
 use crate::quantise::QuantOptions;
 
@@ -66,6 +72,45 @@ pub fn base_formats(model: &Model<'_>, layer: usize) -> Result<(Vec<f64>, Vec<u8
     Ok((inputs, fracs(layer)?))
 }
 
+/// What calibration saw at an adapter.
+struct AdapterStats {
+    /// Mean square of each input column.
+    in_ms: Vec<f64>,
+    /// Max |middle component| (CP).
+    mid_max: Option<Vec<f64>>,
+    /// Mean square of each middle component (CP).
+    mid_ms: Option<Vec<f64>>,
+}
+
+/// Runs `base` with `adapter` beside its layer on the quantiser's
+/// calibration inputs and records what the adapter's node saw.
+fn calibrate_adapter(base: &Net, adapter: &Adapter, opts: &QuantOptions) -> Result<AdapterStats> {
+    let samples = normal_inputs(
+        &base.xmean.to_vec(),
+        &base.xstd.to_vec(),
+        opts.calibration_samples,
+        opts.calibration_scale,
+        opts.seed,
+    );
+    let styled = base.with_adapters(&[(adapter, 1.0)])?;
+    let (g, node, _) = styled_nodes(&styled, adapter.layer)?;
+    let mut stats = AdapterStats {
+        in_ms: vec![0.0; adapter.op.in_dim()],
+        mid_max: None,
+        mid_ms: None,
+    };
+    let count = samples.inputs.len().max(1) as f64;
+    for (x, &p) in samples.inputs.iter().zip(&samples.phases) {
+        let t = styled.graph_trace(g, x, p);
+        ms_into(&mut stats.in_ms, &t.inputs[node], count);
+        if let Some(u) = &t.mids[node] {
+            max_into(stats.mid_max.get_or_insert_with(Vec::new), u);
+            ms_into(stats.mid_ms.get_or_insert_with(Vec::new), u, count);
+        }
+    }
+    Ok(stats)
+}
+
 /// Quantises `adapter` for the base `model` (whose float twin is `base`).
 pub fn quantise_adapter(
     model: &Model<'_>,
@@ -100,37 +145,7 @@ pub fn quantise_adapter(
         );
     }
     let targets: Vec<f64> = fracs.iter().map(|&f| f64::from(1u32 << f)).collect();
-    let samples = normal_inputs(
-        &base.xmean.to_vec(),
-        &base.xstd.to_vec(),
-        opts.calibration_samples,
-        opts.calibration_scale,
-        opts.seed,
-    );
-    let mut mid_max: Option<Vec<f64>> = None;
-    let mut mid_ms: Option<Vec<f64>> = None;
-    let mut in_ms = vec![0.0; adapter.op.in_dim()];
-    let count = samples.inputs.len().max(1) as f64;
-    for (x, &p) in samples.inputs.iter().zip(&samples.phases) {
-        let t = base.forward_trace(x, p, &[]);
-        let h = &t.inputs[l];
-        for (m, v) in in_ms.iter_mut().zip(h) {
-            *m += v * v / count;
-        }
-        let g = if experts == 1 {
-            vec![(0, 1.0)]
-        } else {
-            t.gate.clone()
-        };
-        if let (_, Some(u)) = adapter.op.apply_mid(&g, h) {
-            let m = mid_max.get_or_insert_with(|| vec![0.0; u.len()]);
-            let s = mid_ms.get_or_insert_with(|| vec![0.0; u.len()]);
-            for ((m, s), v) in m.iter_mut().zip(s.iter_mut()).zip(&u) {
-                *m = m.max(v.abs());
-                *s += v * v / count;
-            }
-        }
-    }
+    let stats = calibrate_adapter(base, adapter, opts)?;
     let spec = LayerSpec {
         index: 0,
         in_scales: &in_scales,
@@ -140,9 +155,9 @@ pub fn quantise_adapter(
         gated: experts > 1,
         format: opts.weights,
         gating,
-        mid_max: mid_max.as_deref(),
-        in_power: Some(&in_ms),
-        mid_power: mid_ms.as_deref(),
+        mid_max: stats.mid_max.as_deref(),
+        in_power: Some(&stats.in_ms),
+        mid_power: stats.mid_ms.as_deref(),
         headroom: opts.headroom,
     };
     let (ql, _) = adapter.op.quantise(&spec)?;
@@ -234,6 +249,37 @@ pub fn run_styled(
     Ok(out)
 }
 
+/// The graph of `styled` (a base with one adapter beside its layer
+/// `layer`, [`Net::with_adapters`]), its adapter node and its residual node.
+fn styled_nodes(styled: &Net, layer: usize) -> Result<(&Graph, usize, usize)> {
+    let crate::net::Wiring::Graph(g) = &styled.wiring else {
+        bail!("the styled net is not a graph");
+    };
+    let node = |name: String| {
+        g.node(&name)
+            .ok_or_else(|| anyhow!("the styled net has no node {name:?}"))
+    };
+    Ok((
+        g,
+        node(adapter_node_name(layer, 0))?,
+        node(residual_node_name(layer))?,
+    ))
+}
+
+/// Largest `|styled pre-activation|` of base layer `layer` over `samples`,
+/// as a fraction of the i16 range of its row formats `fracs`.
+fn range_used(styled: &Net, layer: usize, samples: &Samples, fracs: &[u8]) -> Result<f64> {
+    let (g, _, node) = styled_nodes(styled, layer)?;
+    let mut used = 0.0f64;
+    for (x, &p) in samples.inputs.iter().zip(&samples.phases) {
+        let t = styled.graph_trace(g, x, p);
+        for (v, &f) in t.pre[node].iter().zip(fracs) {
+            used = used.max(v.abs() * f64::from(1u32 << f) / 32767.0);
+        }
+    }
+    Ok(used)
+}
+
 /// Quantises `adapter` against `base_blob`, encodes and self-checks the
 /// style blob (it loads and attaches to the base), and measures it.
 pub fn build_style(
@@ -262,11 +308,12 @@ pub fn build_style(
         .zip(&s.phases)
         .map(|(x, &p)| base.forward(x, p))
         .collect();
+    let styled = base.with_adapters(&[(adapter, 1.0)])?;
     let float_styled: Vec<Vec<f64>> = s
         .inputs
         .iter()
         .zip(&s.phases)
-        .map(|(x, &p)| base.forward_trace(x, p, &[(adapter, 1.0)]).y)
+        .map(|(x, &p)| styled.forward(x, p))
         .collect();
     let fixed_styled = run_styled(
         base_blob,
@@ -278,13 +325,7 @@ pub fn build_style(
     let fixed_base = run_styled(base_blob, &[], &|_| Mix::Base, &s.inputs, &s.phases)?;
     let (ym, ys) = (base.ymean.to_vec(), base.ystd.to_vec());
     let (_, fracs) = base_formats(&model, adapter.layer)?;
-    let mut range_used = 0.0f64;
-    for (x, &p) in s.inputs.iter().zip(&s.phases) {
-        let t = base.forward_trace(x, p, &[(adapter, 1.0)]);
-        for (v, &f) in t.pre[adapter.layer].iter().zip(&fracs) {
-            range_used = range_used.max(v.abs() * f64::from(1u32 << f) / 32767.0);
-        }
-    }
+    let range_used = range_used(&styled, adapter.layer, &s, &fracs)?;
     let report = StyleReport {
         name: name.to_string(),
         form: form_name(&adapter.op),

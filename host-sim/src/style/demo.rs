@@ -40,8 +40,8 @@ use std::path::PathBuf;
 
 use super::{
     metrics, mix_label, pose_difference, rollout, svg_side_views, Run, StyleMetrics, StyledFixed,
-    StyledFloat,
 };
+use crate::controller::FloatNet64;
 
 /// `host-sim style-demo`.
 #[derive(Debug, clap::Args)]
@@ -389,11 +389,7 @@ pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
     let scripts = training_scripts(args.frames);
     let mut base_runs = Vec::new();
     for (_, cmds) in &scripts {
-        let mut f = StyledFloat {
-            net: &net,
-            adapters: Vec::new(),
-        };
-        base_runs.push(rollout::<f64, _>(&mut f, cmds)?);
+        base_runs.push(rollout::<f64, _>(&mut FloatNet64(&net), cmds)?);
     }
 
     let eval = evaluation_script(600);
@@ -432,13 +428,10 @@ pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
             );
             losses.push((rep.loss_before, rep.loss_after));
             if round < args.rounds {
+                let styled = net.with_adapters(&[(&ad[0], 1.0)])?;
                 let mut own = Vec::new();
                 for (_, cmds) in &scripts {
-                    let mut f = StyledFloat {
-                        net: &net,
-                        adapters: vec![(&ad[0], 1.0)],
-                    };
-                    own.push(rollout::<f64, _>(&mut f, cmds)?);
+                    own.push(rollout::<f64, _>(&mut FloatNet64(&styled), cmds)?);
                 }
                 data = merge(data, dataset(&net, &own, target, true));
             }
@@ -480,24 +473,13 @@ pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
         Ok(run)
     };
     let base_fixed = fixed_run(&|_| Mix::Base)?;
-    let base_float = rollout::<f64, _>(
-        &mut StyledFloat {
-            net: &net,
-            adapters: Vec::new(),
-        },
-        &eval,
-    )?;
+    let base_float = rollout::<f64, _>(&mut FloatNet64(&net), &eval)?;
     let mut results = Vec::new();
     let mut styled_fixed = Vec::new();
     for (i, (target, losses, report)) in styles.into_iter().enumerate() {
         let fixed = fixed_run(&|_| Mix::One(StyleId(i as u8)))?;
-        let float = rollout::<f64, _>(
-            &mut StyledFloat {
-                net: &net,
-                adapters: vec![(&adapters[i], 1.0)],
-            },
-            &eval,
-        )?;
+        let styled = net.with_adapters(&[(&adapters[i], 1.0)])?;
+        let float = rollout::<f64, _>(&mut FloatNet64(&styled), &eval)?;
         results.push(StyleResult {
             name: target.name(),
             losses,

@@ -1,56 +1,17 @@
 //! Styles on the host: the styled networks behind the controller loop
-//! (float reference with adapters, and the fixed-point `Runtime` with its
-//! style bank),
-//! rollouts, style metrics and pictures, and the adapter-learning
-//! demonstration ([`demo`]).
+//! (float reference: the base chain with its adapters as graph nodes,
+//! `Net::with_adapters`, run by `FloatNet64`; and the fixed-point `Runtime`
+//! with its style bank), rollouts, style metrics and pictures, and the
+//! adapter-learning demonstration ([`demo`]).
 
 pub mod demo;
 
 use anyhow::{anyhow, Result};
-use exporter::net::{Adapter, Net};
 use phasegate::{Mix, Model, Runtime, Style};
 use phasegate_controller::layout::JOINTS;
 use phasegate_controller::{Command, Locomotion, Network, Pose, Real};
 use std::f64::consts::TAU;
 use std::fmt::Write as _;
-
-/// The float network with adapters (each with its mixing weight), f64.
-pub struct StyledFloat<'a> {
-    /// Base.
-    pub net: &'a Net,
-    /// Adapters and weights.
-    pub adapters: Vec<(&'a Adapter, f64)>,
-}
-
-impl Network<f64> for StyledFloat<'_> {
-    fn input_dim(&self) -> usize {
-        self.net.xmean.len()
-    }
-
-    fn output_dim(&self) -> usize {
-        self.net.ymean.len()
-    }
-
-    fn predict(
-        &mut self,
-        phase: f64,
-        x: &[f64],
-        y: &mut [f64],
-    ) -> phasegate_controller::Result<()> {
-        let out = self.net.forward_trace(x, phase * TAU, &self.adapters).y;
-        for (d, s) in y.iter_mut().zip(out) {
-            *d = s;
-        }
-        Ok(())
-    }
-
-    fn mean_output(&self, y: &mut [f64]) -> phasegate_controller::Result<()> {
-        for (d, &s) in y.iter_mut().zip(&self.net.ymean) {
-            *d = s;
-        }
-        Ok(())
-    }
-}
 
 /// The float PFNN (cubic gating) from a weight directory or an `.npz`.
 pub fn load_float(path: &std::path::Path) -> Result<exporter::net::Net> {
