@@ -26,6 +26,7 @@ use crate::calibrate::{calibrate, Ranges};
 use crate::encode::{QKind, QLayer, QModel, Wiring};
 
 pub mod graph;
+pub mod moments;
 use crate::net::{GatingMode, Net};
 
 /// Knobs of the quantiser.
@@ -52,6 +53,10 @@ pub struct QuantOptions {
         skip_serializing_if = "BTreeMap::is_empty"
     )]
     pub layer_weights: BTreeMap<usize, WeightFormat>,
+    /// Calibration samples for error-aware rounding of int8 dense weights
+    /// (their inputs' second moments, see [`moments`]); 0 rounds every
+    /// weight to nearest.
+    pub compensation_samples: usize,
 }
 
 impl QuantOptions {
@@ -85,6 +90,7 @@ impl Default for QuantOptions {
             headroom: 1.5,
             seed: 0x5EED_CA1B,
             layer_weights: BTreeMap::new(),
+            compensation_samples: 16_384,
         }
     }
 }
@@ -262,6 +268,10 @@ pub struct LayerSpec<'s> {
     pub mid_power: Option<&'s [f64]>,
     /// Factor between calibrated maxima and the i16 range.
     pub headroom: f64,
+    /// Per expert, the second and first moments of the input as that
+    /// expert sees it (real units): with them, int8 dense weights are
+    /// rounded for the least output error rather than to nearest.
+    pub in_moments: Option<&'s moments::LayerMoments>,
 }
 
 /// `(m, post)` with `m * 2^-post == m_real`, `m` in `[2^30, 2^31)`, post in `[0, 62]`.
@@ -556,6 +566,28 @@ fn column_scales(
     best
 }
 
+/// The input moments of the chain's int8 dense layers, from
+/// `compensation_samples` inputs drawn like the calibration's.
+fn chain_moments(net: &Net, opts: &QuantOptions) -> Vec<Option<moments::LayerMoments>> {
+    if opts.compensation_samples == 0 {
+        return vec![None; net.layers.len()];
+    }
+    let samples = crate::calibrate::normal_inputs(
+        &net.xmean.to_vec(),
+        &net.xstd.to_vec(),
+        opts.compensation_samples,
+        opts.calibration_scale,
+        opts.seed ^ COMPENSATION_SEED,
+    );
+    moments::chain_moments(net, &samples, |l| {
+        opts.weights_of(l) == WeightFormat::I8
+            && matches!(net.layers.get(l), Some(crate::net::NetLayer::Dense(_)))
+    })
+}
+
+/// Keeps the compensation inputs apart from the calibration inputs.
+const COMPENSATION_SEED: u64 = 0xC0_4E57;
+
 /// Quantises `net` into a blob model: one pipeline for every op.
 pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantError> {
     if net
@@ -578,6 +610,7 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
     let samples = crate::calibrate::calibration_inputs(net, opts);
     let ranges = calibrate(net, &samples);
     let input_frac = frac_for(opts.input_range_sigma, 1.0, 15);
+    let moments = chain_moments(net, opts);
 
     // Each node's input columns get their own scale (integer units per
     // real unit): as fine as the calibrated range allows (the cap), lowered
@@ -660,6 +693,7 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
             in_power: Some(&ranges.input_ms[li]),
             mid_power: ranges.mid_ms[li].as_deref(),
             headroom: opts.headroom,
+            in_moments: moments.get(li).and_then(Option::as_ref),
         };
         let (ql, rep) = layer.quantise(&spec)?;
         reports.push(QuantLayerReport {

@@ -5,22 +5,7 @@
 //! weights are absent.
 
 use host_sim::rollout::fidelity::{export_blobs, load_cubic, measure, VARIANTS};
-use std::path::{Path, PathBuf};
-
-fn pfnn_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("PHASEGATE_PFNN_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/pfnn/network"));
-    if dir.join("Xmean.bin").is_file() {
-        Some(dir)
-    } else {
-        eprintln!(
-            "skipped: real PFNN weights not found at {} (set PHASEGATE_PFNN_DIR)",
-            dir.display()
-        );
-        None
-    }
-}
+use phasegate_tests::real_pfnn_dir as pfnn_dir;
 
 #[test]
 fn long_rollouts_stay_with_the_float_controller() {

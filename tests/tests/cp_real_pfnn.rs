@@ -13,22 +13,8 @@ use exporter::quantise::QuantOptions;
 use exporter::style::build_style;
 use ndarray::{Array1, Array2};
 use phasegate::blob::WeightFormat;
-use std::path::{Path, PathBuf};
-
-fn pfnn_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("PHASEGATE_PFNN_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/pfnn/network"));
-    if dir.join("Xmean.bin").is_file() {
-        Some(dir)
-    } else {
-        eprintln!(
-            "skipped: real PFNN weights not found at {} (set PHASEGATE_PFNN_DIR)",
-            dir.display()
-        );
-        None
-    }
-}
+use phasegate_tests::real_pfnn_dir as pfnn_dir;
+use std::path::Path;
 
 fn load(dir: &Path) -> Net {
     let t = exporter::pfnn_dir::load_pfnn_dir(dir).unwrap();

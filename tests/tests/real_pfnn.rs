@@ -4,28 +4,14 @@
 //! a message, where the weights are absent.
 
 use host_sim::accuracy::{measure, sample_matrix};
+use phasegate_tests::real_pfnn_dir as pfnn_dir;
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Says why a test did nothing, on stderr directly, so that it shows even
 /// though the test harness captures `println!`/`eprintln!` of passing tests.
 fn skip(why: &str) {
     let _ = writeln!(std::io::stderr(), "skipped: {why}");
-}
-
-fn pfnn_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("PHASEGATE_PFNN_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/pfnn/network"));
-    if dir.join("Xmean.bin").is_file() {
-        Some(dir)
-    } else {
-        skip(&format!(
-            "real PFNN weights not found at {} (set PHASEGATE_PFNN_DIR)",
-            dir.display()
-        ));
-        None
-    }
 }
 
 /// Foundation issue, point 6: 64 samples per spread s in {0, .25, .5, 1},

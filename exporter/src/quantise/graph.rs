@@ -170,6 +170,7 @@ pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quant
                     in_power: Some(&stats[i].input_ms),
                     mid_power: stats[i].mid_ms.as_deref(),
                     headroom: opts.headroom,
+                    in_moments: None,
                 };
                 let (ql, rep) = l.quantise(&spec)?;
                 reports.push(QuantLayerReport {

@@ -159,6 +159,7 @@ pub fn quantise_adapter(
         in_power: Some(&stats.in_ms),
         mid_power: stats.mid_ms.as_deref(),
         headroom: opts.headroom,
+        in_moments: None,
     };
     let (ql, _) = adapter.op.quantise(&spec)?;
     Ok(QModel {

@@ -1,0 +1,229 @@
+//! Second moments of each layer's input as each expert sees it,
+//! `H_k = E[g_k^2 x x^T]`, with `E[g_k x]` and `E[g_k]`, over calibration
+//! inputs: what error-aware rounding ([`crate::ops::dense`]) needs to know
+//! which weight errors the outputs feel.
+//!
+//! Expert `k` contributes `g_k W_k x` to a gated layer, so an error `dw` in
+//! one of its rows costs `E[(g_k dw . x)^2] = dw H_k dw^T`. The cross terms
+//! between experts that are active together are left out: on the real
+//! PFNN, rounding the four experts' rows stacked against the whole
+//! `E[z z^T]` (`z = g (x) x`) gave an output RMS 1 % lower for five times
+//! the export time.
+
+use ndarray::{Array1, Array2, Axis};
+
+use crate::calibrate::Samples;
+use crate::net::{elu, Net, NetLayer};
+
+/// Samples run through the network together.
+const CHUNK: usize = 512;
+
+/// What the experts of one layer saw.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LayerMoments {
+    /// `E[g_k^2 x x^T]` per expert (`in x in`), real units.
+    pub second: Vec<Array2<f64>>,
+    /// `E[g_k x]` per expert, real units.
+    pub first: Vec<Array1<f64>>,
+    /// `E[g_k]` per expert.
+    pub gate_mean: Vec<f64>,
+}
+
+impl LayerMoments {
+    fn new(experts: usize, dim: usize) -> Self {
+        LayerMoments {
+            second: vec![Array2::zeros((dim, dim)); experts],
+            first: vec![Array1::zeros(dim); experts],
+            gate_mean: vec![0.0; experts],
+        }
+    }
+
+    /// Adds a chunk: `x` (samples x in) and the gate `g` (samples x experts).
+    fn add(&mut self, x: &Array2<f64>, g: &Array2<f64>) {
+        for (k, gk) in g.columns().into_iter().enumerate() {
+            if gk.iter().all(|&v| v == 0.0) {
+                continue;
+            }
+            let z = x * &gk.insert_axis(Axis(1));
+            self.first[k] += &z.sum_axis(Axis(0));
+            self.gate_mean[k] += gk.sum();
+            self.second[k] += &z.t().dot(&z);
+        }
+    }
+
+    fn finish(mut self, n: f64) -> Self {
+        for m in &mut self.second {
+            *m /= n;
+        }
+        for f in &mut self.first {
+            *f /= n;
+        }
+        for g in &mut self.gate_mean {
+            *g /= n;
+        }
+        self
+    }
+}
+
+/// The moments of every layer `l` of a chain for which `wanted(l)` (the
+/// other layers get `None`), over `samples`. The chain runs on whole
+/// chunks of samples at once (matrix products, not one vector at a time).
+pub fn chain_moments(
+    net: &Net,
+    samples: &Samples,
+    wanted: impl Fn(usize) -> bool,
+) -> Vec<Option<LayerMoments>> {
+    let mut out: Vec<Option<LayerMoments>> = net
+        .layers
+        .iter()
+        .enumerate()
+        .map(|(l, layer)| wanted(l).then(|| LayerMoments::new(layer.experts(), layer.in_dim())))
+        .collect();
+    let depth = out.iter().rposition(Option::is_some).map_or(0, |l| l + 1);
+    let experts = net.experts();
+    for (xs, ps) in samples
+        .inputs
+        .chunks(CHUNK)
+        .zip(samples.phases.chunks(CHUNK))
+    {
+        let mut g = Array2::zeros((ps.len(), experts));
+        for (r, &p) in ps.iter().enumerate() {
+            for (k, v) in net.gate(p) {
+                if let Some(c) = g.get_mut((r, k)) {
+                    *c = v;
+                }
+            }
+        }
+        let mut h = Array2::from_shape_fn((xs.len(), net.input_dim()), |(r, j)| {
+            (xs[r][j] - net.xmean[j]) / net.xstd[j]
+        });
+        for (l, layer) in net.layers.iter().enumerate().take(depth) {
+            if let Some(m) = &mut out[l] {
+                m.add(&h, &g);
+            }
+            let pre = layer_batch(layer, &h, &g);
+            h = if l + 1 == net.layers.len() {
+                pre
+            } else {
+                pre.mapv(elu)
+            };
+        }
+    }
+    let n = samples.inputs.len().max(1) as f64;
+    out.into_iter().map(|m| m.map(|m| m.finish(n))).collect()
+}
+
+/// One layer on a chunk of samples (rows of `x`, gate coefficients in the
+/// rows of `g`), as matrix products: the pre-activation of every sample.
+fn layer_batch(layer: &NetLayer, x: &Array2<f64>, g: &Array2<f64>) -> Array2<f64> {
+    let stacked = |v: &[Array1<f64>]| {
+        let views: Vec<_> = v.iter().map(|r| r.view()).collect();
+        ndarray::stack(Axis(0), &views).unwrap_or_else(|_| Array2::zeros((0, 0)))
+    };
+    match layer {
+        NetLayer::Dense(d) => {
+            let mut pre = g.dot(&stacked(&d.b));
+            for (w, gk) in d.w.iter().zip(g.columns()) {
+                if gk.iter().any(|&v| v != 0.0) {
+                    pre += &(x.dot(&w.t()) * gk.insert_axis(Axis(1)));
+                }
+            }
+            pre
+        }
+        NetLayer::Cp(c) => (x.dot(&c.b) * g.dot(&c.d)).dot(&c.a.t()) + g.dot(&stacked(&c.bias)),
+        NetLayer::Diagonal(d) => x * &g.dot(&stacked(&d.w)) + g.dot(&stacked(&d.b)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calibrate::normal_inputs;
+    use crate::net::{CpLayer, DiagLayer, ExpertLayer, GatingMode, Wiring};
+
+    fn net() -> Net {
+        let layer = |o: usize, i: usize, seed: usize| {
+            NetLayer::Dense(ExpertLayer {
+                w: (0..4)
+                    .map(|k| {
+                        Array2::from_shape_fn((o, i), |(a, b)| {
+                            (((a * 7 + b * 13 + k * 5 + seed) % 17) as f64 - 8.0) * 0.05
+                        })
+                    })
+                    .collect(),
+                b: (0..4)
+                    .map(|k| Array1::from_elem(o, k as f64 * 0.1 - 0.1))
+                    .collect(),
+            })
+        };
+        Net {
+            mode: GatingMode::Cubic,
+            xmean: Array1::from_elem(6, 0.5),
+            xstd: Array1::from_elem(6, 2.0),
+            ymean: Array1::zeros(3),
+            ystd: Array1::ones(3),
+            layers: vec![
+                layer(5, 6, 0),
+                NetLayer::Cp(CpLayer {
+                    a: Array2::from_shape_fn((4, 3), |(a, b)| (a + 2 * b) as f64 * 0.1 - 0.3),
+                    b: Array2::from_shape_fn((5, 3), |(a, b)| (3 * a + b) as f64 * 0.07 - 0.4),
+                    d: Array2::from_shape_fn((4, 3), |(a, b)| (a * b) as f64 * 0.5 + 0.1),
+                    bias: (0..4)
+                        .map(|k| Array1::from_elem(4, k as f64 * 0.2))
+                        .collect(),
+                }),
+                NetLayer::Diagonal(DiagLayer {
+                    w: (0..4)
+                        .map(|k| Array1::from_elem(4, 0.5 + k as f64 * 0.3))
+                        .collect(),
+                    b: (0..4)
+                        .map(|k| Array1::from_elem(4, 0.1 - k as f64 * 0.1))
+                        .collect(),
+                }),
+                layer(3, 4, 9),
+            ],
+            wiring: Wiring::Chain,
+        }
+    }
+
+    /// The batched chain (dense, CP and diagonal layers) equals the
+    /// per-sample trace.
+    #[test]
+    fn moments_equal_the_per_sample_sums() {
+        let net = net();
+        let n = CHUNK + 37;
+        let samples = normal_inputs(&[0.5; 6], &[2.0; 6], n, 1.0, 3);
+        let m = chain_moments(&net, &samples, |_| true);
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-9 * (1.0 + b.abs());
+        for (l, (layer, got)) in net.layers.iter().zip(&m).enumerate() {
+            let dim = layer.in_dim();
+            let mut second = vec![Array2::<f64>::zeros((dim, dim)); 4];
+            assert_eq!(layer.experts(), 4);
+            let mut first = vec![Array1::<f64>::zeros(dim); 4];
+            let mut gm = [0.0; 4];
+            for (x, &p) in samples.inputs.iter().zip(&samples.phases) {
+                let t = net.forward_trace(x, p);
+                for &(k, g) in &t.gate {
+                    let z = (&t.inputs[l] * g).insert_axis(Axis(1));
+                    second[k] += &(z.dot(&z.t()) / n as f64);
+                    first[k].scaled_add(g / n as f64, &t.inputs[l]);
+                    gm[k] += g / n as f64;
+                }
+            }
+            let got = got.as_ref().unwrap();
+            for k in 0..4 {
+                assert!(got.second[k]
+                    .iter()
+                    .zip(&second[k])
+                    .all(|(a, b)| close(*a, *b)));
+                assert!(got.first[k]
+                    .iter()
+                    .zip(&first[k])
+                    .all(|(a, b)| close(*a, *b)));
+                assert!(close(got.gate_mean[k], gm[k]));
+            }
+        }
+        assert!(chain_moments(&net, &samples, |l| l == 1)[0].is_none());
+        assert_eq!(m.len(), 4);
+    }
+}
