@@ -1,0 +1,1 @@
+"""OMG training (PyTorch, CPU). See tools/omg/README.md."""

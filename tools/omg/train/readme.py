@@ -1,0 +1,81 @@
+"""Write README.md of trained model directories from their config.json (no PyTorch).
+
+    python3 -m tools.omg.train.readme models/omg/tiny_fe_r1 [more dirs]
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+
+def readme(d: Path) -> str:
+    c = json.loads((d / "config.json").read_text())
+    t = c["training"]
+    s = c["sizes"]
+    m = c["macs_per_frame"]
+    files = sorted(p.name for p in d.iterdir() if p.is_file() and p.name != "README.md")
+    sizes = {p: (d / p).stat().st_size for p in files}
+    lines = [
+        f"# {d.name}",
+        "",
+        f"{c['variant']}-OMG on rig {c['rig']} (J = {c['J']}, K = {c['K']}), trained for **{c['mode']}** inference.",
+        "",
+        "Reproduce (repository root, data from `python3 -m tools.omg.generate --out data/omg --seed 0 --rigs R1,R4`,"
+        " PyTorch from `tools/omg/requirements-train.txt`):",
+        "",
+        "```sh",
+        t["command"],
+        "```",
+        "",
+        f"Seed {t['seed']}; {t['threads']} thread(s); torch {t['torch']}, Python {t['python']}. Wall time on the shared"
+        f" 2-core machine: AE pre-training {t['ae_pretrain_s']} s, OMG training {t['omg_train_s']} s,"
+        f" {t['total_wall_s']} s in all (with export). Training clips: {t['train_clips']}.",
+        "",
+        f"Sizes: AE hidden {s['ae_hidden']}, latent L {s['latent']}, cost encoder {s['cost_hidden']}, experts"
+        f" {s['experts']} x hidden {s['expert_hidden']}, gate hidden {s['gate_hidden']}"
+        + (f", RBF clusters {s['clusters']}" if c["variant"] == "RBF-CAT" else "")
+        + f". **{c['params']:,} parameters, {m['total']:,} MACs per frame** ("
+        + ", ".join(f"{k} {v:,}" for k, v in m.items() if k != "total")
+        + "; experts counted k times, softmax/ELU/blend and grounded cost recomputation not counted).",
+        "",
+    ]
+    if t.get("shared_from"):
+        lines += [
+            f"Rig transfer: CostEnc, gate and experts copied from `{t['shared_from']}`"
+            + (" and **frozen** (only the autoencoder trained, 'Frozen')." if t["frozen_shared"] else " (all trained)."),
+            f"Normalisation of the phase, cost and target blocks is the source model's; the pose block's is this rig's.",
+            "",
+        ]
+    lines += [
+        f"Final losses (normalised MSE over the whole frame): train {t['final_train_loss']:.4f} (last epoch, mixed"
+        f" teacher forcing/autoregression), validation one-step {t['final_val_one_step']:.4f}.",
+        "",
+        "| file | bytes | content |",
+        "|---|---|---|",
+    ]
+    desc = {
+        "model.safetensors": "weights (float32) and `norm.mean`/`norm.std`; names and shapes in `tools/omg/omg_np.py`",
+        "config.json": "sizes, slices, out slices, phase-update constant, mode, normalisation, params, MACs, training record",
+        "history.json": "per-epoch losses and autoregression probability",
+        "train.log": "training log",
+    }
+    desc.update(c.get("reference", {}).get("files", {}))
+    for f in files:
+        desc_f = desc.get(f, desc.get(f.rsplit(".", 1)[0], ""))
+        lines.append(f"| `{f}` | {sizes[f]:,} | {desc_f} |")
+    lines += [
+        "",
+        f"Reference outputs come from PyTorch (float32) on test rows {c['reference']['test_rows']};"
+        " `tools/omg/tests/test_models.py` checks that the NumPy forward pass reproduces them.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    for a in sys.argv[1:]:
+        p = Path(a)
+        (p / "README.md").write_text(readme(p))
+        print(f"wrote {p / 'README.md'}")
