@@ -41,7 +41,8 @@ fn error_aware_rounding_lowers_the_real_pfnn_int8_error() {
         };
         export(&net, residual, &opts).unwrap().0
     };
-    let (nearest, aware) = (int8(0), int8(QuantOptions::default().compensation_samples));
+    assert_eq!(QuantOptions::default().compensation_samples, 0, "opt-in");
+    let (nearest, aware) = (int8(0), int8(16_384));
     assert_eq!(nearest.len(), aware.len(), "same settings, same blob size");
     let (rn, pn, mn) = errors(&net, &nearest);
     let (ra, pa, ma) = errors(&net, &aware);
