@@ -68,29 +68,13 @@ def parse(argv=None):
     return a.parse_args(argv)
 
 
-SHARED_PREFIXES = ("cost.", "gate.", "experts.", "rbf.")
 
 
 def load_shared(model: OMG, tensors: dict):
-    own = model.export_tensors()
     with torch.no_grad():
-        named = dict(model.named_parameters())
-        # map export names -> parameters
-        mapping = {}
-        for name, mlp in (("cost", model.cost), ("gate", model.gate)):
-            for i, lin in enumerate(mlp.layers):
-                mapping[f"{name}.{i}.w"] = lin.weight
-                mapping[f"{name}.{i}.b"] = lin.bias
-        for i in range(3):
-            mapping[f"experts.w{i}"] = model.experts.w[i]
-            mapping[f"experts.b{i}"] = model.experts.b[i]
-        if model.rbf is not None:
-            mapping["rbf.centres"] = model.rbf.centres
-            mapping["rbf.scales"] = model.rbf.scales
-        for k, p in mapping.items():
-            assert tensors[k].shape == own[k].shape, (k, tensors[k].shape, own[k].shape)
+        for k, p in model.named_tensors(shared_only=True).items():
+            assert tensors[k].shape == p.shape, (k, tensors[k].shape, p.shape)
             p.copy_(tensors[k])
-    del named
 
 
 def main(argv=None):

@@ -152,9 +152,14 @@ class OMG(nn.Module):
         return [m for m in (self.cost, self.gate, self.experts, self.rbf) if m is not None]
 
     # -- export --------------------------------------------------------------------
-    def export_tensors(self) -> dict:
+    def named_tensors(self, shared_only: bool = False) -> dict:
+        """Export name -> parameter (live, not detached); `shared_only`
+        leaves out the rig's autoencoder."""
         t = {}
-        for name, mlp in (("enc", self.ae.enc), ("dec", self.ae.dec), ("cost", self.cost), ("gate", self.gate)):
+        mlps = (("cost", self.cost), ("gate", self.gate))
+        if not shared_only:
+            mlps = (("enc", self.ae.enc), ("dec", self.ae.dec)) + mlps
+        for name, mlp in mlps:
             for i, lin in enumerate(mlp.layers):
                 t[f"{name}.{i}.w"] = lin.weight
                 t[f"{name}.{i}.b"] = lin.bias
@@ -164,7 +169,10 @@ class OMG(nn.Module):
         if self.rbf is not None:
             t["rbf.centres"] = self.rbf.centres
             t["rbf.scales"] = self.rbf.scales
-        return {k: v.detach().contiguous().float() for k, v in t.items()}
+        return t
+
+    def export_tensors(self) -> dict:
+        return {k: v.detach().contiguous().float() for k, v in self.named_tensors().items()}
 
     def macs_per_frame(self) -> dict:
         def mlp(m):
