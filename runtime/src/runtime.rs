@@ -253,9 +253,12 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
         let mut softmaxes = 0u8;
         let weights = self.mix.weights();
         let h = self.model.header();
-        for (i, node) in h.nodes.each().enumerate() {
+        for i in 0..h.nodes.count() {
             let id = i as u8;
             let invalid = Error::GraphInvalid { node: id };
+            // The loader decoded every node already; should one not decode
+            // now, the frame fails rather than skipping the rest.
+            let node = h.nodes.node(i).ok_or(invalid)?;
             if let Some(o) = outputs.get_mut(i) {
                 *o = node.output;
             }
