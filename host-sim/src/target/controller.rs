@@ -19,6 +19,7 @@ use phasegate_controller::layout::{INPUTS, JOINTS, OUTPUTS};
 use phasegate_controller::{Command, Locomotion, Pose};
 
 use super::build::build_controller_firmware;
+use super::run::records_and_trailer;
 use super::styles::{self, MixGroup, MixSpec, StyleFile};
 use super::{
     boot, build_firmware, memory_use, time_limit, wire, ElfInfo, FlashUse, RamUse, Stats, HOST_N,
@@ -545,32 +546,19 @@ pub fn parse_pose_file(file: &[u8], frames: usize, input_crc: u32) -> Result<Pos
         h.input_crc
     );
     let rl = h.record_len();
-    let body = &file[wire::HEADER_LEN..];
-    let expected = frames * rl + wire::HEADER_LEN;
-    ensure!(
-        body.len() == expected,
-        "firmware output file holds {} bytes after its header, expected {expected} ({frames} poses and the trailer): the run stopped early",
-        body.len()
-    );
+    let (records, trailer) = records_and_trailer(file, rl, frames, ("poses", "steps"))?;
     let mut out = PoseFile {
         poses: Vec::with_capacity(frames),
         network_ticks: Vec::with_capacity(frames),
         step_ticks: Vec::with_capacity(frames),
-        trailer: wire::Trailer::default(),
+        trailer,
     };
-    for r in body[..frames * rl].chunks_exact(rl) {
+    for r in records.chunks_exact(rl) {
         let (head, pose) =
             wire::decode_pose_record(r).context("firmware pose record has the wrong length")?;
         out.network_ticks.push(u64::from(head.infer_ticks));
         out.step_ticks.push(u64::from(head.frame_ticks));
         out.poses.push(pose);
     }
-    out.trailer = wire::Trailer::parse(&body[frames * rl..])
-        .map_err(|e| anyhow::anyhow!("firmware output trailer: {e}"))?;
-    ensure!(
-        out.trailer.frames_done as usize == frames,
-        "the firmware reports {} steps done, expected {frames}",
-        out.trailer.frames_done
-    );
     Ok(out)
 }

@@ -224,36 +224,51 @@ fn parse_outputs(
         h.input_crc
     );
     let rl = h.record_len();
-    let body = &file[wire::HEADER_LEN..];
-    let expected = frames * rl + wire::HEADER_LEN;
-    ensure!(
-        body.len() == expected,
-        "firmware output file holds {} bytes after its header, expected {expected} ({frames} records and the trailer): the run stopped early",
-        body.len()
-    );
+    let (records, trailer) = records_and_trailer(file, rl, frames, ("records", "frames"))?;
     let mut out = TargetOutputs {
         q: vec![0; frames * output_dim],
         f: vec![0.0; frames * output_dim],
         infer_ticks: Vec::with_capacity(frames),
         frame_ticks: Vec::with_capacity(frames),
-        trailer: wire::Trailer::default(),
+        trailer,
     };
-    for i in 0..frames {
-        let r = &body[i * rl..(i + 1) * rl];
+    for (i, r) in records.chunks_exact(rl).enumerate() {
         let span = i * output_dim..(i + 1) * output_dim;
         let head = wire::decode_record(r, &mut out.q[span.clone()], &mut out.f[span])
             .context("firmware output record has the wrong length")?;
         out.infer_ticks.push(u64::from(head.infer_ticks));
         out.frame_ticks.push(u64::from(head.frame_ticks));
     }
-    out.trailer = wire::Trailer::parse(&body[frames * rl..])
-        .map_err(|e| anyhow::anyhow!("firmware output trailer: {e}"))?;
-    ensure!(
-        out.trailer.frames_done as usize == frames,
-        "the firmware reports {} frames done, expected {frames}",
-        out.trailer.frames_done
-    );
     Ok(out)
+}
+
+/// The `frames` records (`record_len` bytes each) of a firmware output
+/// file whose header was checked, and its trailer, once the file's length
+/// and the trailer's frame count say the run finished. `nouns`: what a
+/// record and a frame are called in the errors.
+pub(super) fn records_and_trailer<'f>(
+    file: &'f [u8],
+    record_len: usize,
+    frames: usize,
+    nouns: (&str, &str),
+) -> Result<(&'f [u8], wire::Trailer)> {
+    let (record, frame) = nouns;
+    let body = &file[wire::HEADER_LEN..];
+    let expected = frames * record_len + wire::HEADER_LEN;
+    ensure!(
+        body.len() == expected,
+        "firmware output file holds {} bytes after its header, expected {expected} ({frames} {record} and the trailer): the run stopped early",
+        body.len()
+    );
+    let (records, tail) = body.split_at(frames * record_len);
+    let trailer =
+        wire::Trailer::parse(tail).map_err(|e| anyhow::anyhow!("firmware output trailer: {e}"))?;
+    ensure!(
+        trailer.frames_done as usize == frames,
+        "the firmware reports {} {frame} done, expected {frames}",
+        trailer.frames_done
+    );
+    Ok((records, trailer))
 }
 
 /// Does the work of [`run_target`] without printing or judging the result.
