@@ -21,6 +21,14 @@ pub struct Samples {
     pub phases: Vec<f64>,
 }
 
+impl Samples {
+    /// Appends `other`'s rows.
+    pub fn extend(&mut self, other: &Samples) {
+        self.inputs.extend_from_slice(&other.inputs);
+        self.phases.extend_from_slice(&other.phases);
+    }
+}
+
 /// `n` inputs `mean + std * N(0, 1) * scale` with uniform random phases,
 /// from a ChaCha8 stream seeded by `seed` (same on every platform).
 pub fn normal_inputs(mean: &[f64], std: &[f64], n: usize, scale: f64, seed: u64) -> Samples {
@@ -90,13 +98,17 @@ pub fn calibration_inputs(net: &Net, opts: &crate::quantise::QuantOptions) -> Sa
         .iter()
         .map(crate::net::NetLayer::calibration_samples)
         .fold(opts.calibration_samples, usize::max);
-    normal_inputs(
+    let mut s = normal_inputs(
         &net.xmean.to_vec(),
         &net.xstd.to_vec(),
         wanted,
         opts.calibration_scale,
         opts.seed,
-    )
+    );
+    if let Some(r) = &opts.calibration_data {
+        s.extend(&r.samples);
+    }
+    s
 }
 
 /// Runs the chain `net` on every sample and records the ranges.

@@ -41,6 +41,9 @@ pub struct ExportReport {
     pub overflow_proof_statement: &'static str,
     /// Quantiser options used.
     pub options: QuantOptions,
+    /// Where `--int16-budget` went, when given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub int16_budget: Option<crate::budget::BudgetReport>,
 }
 
 /// JSON form of [`Residual`].
@@ -122,6 +125,7 @@ pub fn export(
         overflow_proof_statement: PROOF_STATEMENT,
         layers: q.layers,
         options: opts.clone(),
+        int16_budget: None,
     };
     Ok((blob, report))
 }

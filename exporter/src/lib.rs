@@ -3,6 +3,7 @@
 //! fixed-point runtime is measured against.
 
 pub mod atomic;
+pub mod budget;
 pub mod calibrate;
 pub mod cli_args;
 pub mod control_points;

@@ -57,6 +57,16 @@ struct OutputArgs {
     /// rollout worse.
     #[arg(long, default_value_t = 0)]
     compensation_samples: usize,
+    /// Recorded network inputs (an .npz with X (N, inputs) and phase (N,),
+    /// as `host-sim rollout-dataset` writes) added to the normal samples
+    /// of the range calibration and of the error-aware rounding.
+    #[arg(long, value_name = "ROLLOUTS.npz")]
+    calibration: Option<PathBuf>,
+    /// Spend up to this many extra bytes on int16 weights where they remove
+    /// the most output error per byte (whole layers, measured; int8 blobs
+    /// only; the report's int16_budget says where it went).
+    #[arg(long, value_name = "BYTES")]
+    int16_budget: Option<usize>,
 }
 
 fn parse_bits(s: &str) -> Result<u8, String> {
@@ -181,15 +191,43 @@ fn export(
             q.input_range_sigma
         );
     }
+    let calibration_data = q
+        .calibration
+        .as_deref()
+        .map(|p| exporter::quantise::Recorded::read(p, net.input_dim()))
+        .transpose()?;
     let opts = QuantOptions {
         weights,
         input_range_sigma: q.input_range_sigma,
         compensation_samples: q.compensation_samples,
+        calibration_data,
         ..QuantOptions::default()
     };
-    let pb = spinner("calibrating and quantising");
-    let (blob, report) = exporter::export::export(net, residual, &opts)?;
-    pb.finish_and_clear();
+    let (blob, report) = match q.int16_budget {
+        None => {
+            let pb = spinner("calibrating and quantising");
+            let r = exporter::export::export(net, residual, &opts)?;
+            pb.finish_and_clear();
+            r
+        }
+        Some(_) if weights == WeightFormat::I16 => {
+            bail!("--int16-budget spends bytes on an int8 blob; this one is int16 already")
+        }
+        Some(budget) => {
+            let pb = spinner("int16 budget: exporting and measuring candidates");
+            let r = exporter::budget::export_with_int16_budget(
+                net,
+                residual,
+                &opts,
+                budget,
+                |done, most| {
+                    pb.set_message(format!("int16 budget: candidate {done} of at most {most}"));
+                },
+            )?;
+            pb.finish_and_clear();
+            r
+        }
+    };
     write_outputs(&blob, &report, q)?;
     if std::io::stdout().is_terminal() || std::env::var_os("PHASEGATE_VERBOSE").is_some() {
         summary(&report, &q.output);

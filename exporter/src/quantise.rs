@@ -59,6 +59,42 @@ pub struct QuantOptions {
     /// recorded rollouts: on the real PFNN, 16,384 normal inputs cut the
     /// output RMS by a third but made the crouch-walk rollout worse.
     pub compensation_samples: usize,
+    /// Recorded inputs (`--calibration`, for example the float controller's
+    /// rollouts from `host-sim rollout-dataset`): added to the normal
+    /// samples of the range calibration and of the error-aware rounding,
+    /// so that formats and rounding also fit the inputs a controller feeds.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration_data: Option<Recorded>,
+}
+
+/// Recorded calibration inputs and where they came from.
+#[derive(Clone, Debug)]
+pub struct Recorded {
+    /// The file, for the report.
+    pub source: String,
+    /// The rows.
+    pub samples: std::sync::Arc<crate::calibrate::Samples>,
+}
+
+impl Recorded {
+    /// Reads a rollout data set (`host-sim rollout-dataset`'s `.npz`) for a
+    /// model of `input_dim` inputs.
+    pub fn read(path: &std::path::Path, input_dim: usize) -> anyhow::Result<Recorded> {
+        Ok(Recorded {
+            source: path.display().to_string(),
+            samples: std::sync::Arc::new(crate::cp::distill::read_distill_data(path, input_dim)?),
+        })
+    }
+}
+
+impl Serialize for Recorded {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeStruct;
+        let mut st = s.serialize_struct("Recorded", 2)?;
+        st.serialize_field("source", &self.source)?;
+        st.serialize_field("rows", &self.samples.inputs.len())?;
+        st.end()
+    }
 }
 
 impl QuantOptions {
@@ -93,6 +129,7 @@ impl Default for QuantOptions {
             seed: 0x5EED_CA1B,
             layer_weights: BTreeMap::new(),
             compensation_samples: 0,
+            calibration_data: None,
         }
     }
 }
@@ -574,13 +611,16 @@ fn chain_moments(net: &Net, opts: &QuantOptions) -> Vec<Option<moments::LayerMom
     if opts.compensation_samples == 0 {
         return vec![None; net.layers.len()];
     }
-    let samples = crate::calibrate::normal_inputs(
+    let mut samples = crate::calibrate::normal_inputs(
         &net.xmean.to_vec(),
         &net.xstd.to_vec(),
         opts.compensation_samples,
         opts.calibration_scale,
         opts.seed ^ COMPENSATION_SEED,
     );
+    if let Some(r) = &opts.calibration_data {
+        samples.extend(&r.samples);
+    }
     moments::chain_moments(net, &samples, |l| {
         opts.weights_of(l) == WeightFormat::I8
             && matches!(net.layers.get(l), Some(crate::net::NetLayer::Dense(_)))

@@ -631,3 +631,65 @@ fn inspect_shows_ops_macs_and_styles() {
         "{text}"
     );
 }
+
+#[test]
+fn calibration_rollouts_reach_the_quantiser_and_the_report() {
+    let tmp = tempfile::tempdir().unwrap();
+    let weights = tmp.path().join("net");
+    small_pfnn(&weights);
+    let data = tmp.path().join("rollouts.npz");
+    rollout_data(&data, 300);
+    let export = |name: &str, extra: &[&str]| {
+        let blob = tmp.path().join(format!("{name}.blob"));
+        let report = tmp.path().join(format!("{name}.json"));
+        let mut args = vec![
+            "pfnn",
+            "--weights",
+            weights.to_str().unwrap(),
+            "--gating",
+            "cubic",
+            "-o",
+            blob.to_str().unwrap(),
+            "--report",
+            report.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let o = exporter(&args);
+        (o, blob, report)
+    };
+    let (o, plain, _) = export("plain", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let d = data.to_str().unwrap();
+    let (o, calibrated, report) = export(
+        "calibrated",
+        &["--calibration", d, "--compensation-samples", "256"],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = json(&report);
+    assert_eq!(r["options"]["calibration_data"]["rows"], 300, "{r}");
+    assert_eq!(r["options"]["calibration_data"]["source"], d);
+    let (a, b) = (
+        std::fs::read(plain).unwrap(),
+        std::fs::read(calibrated).unwrap(),
+    );
+    assert_eq!(a.len(), b.len(), "same settings, same size");
+    assert_ne!(a, b, "the recorded rows changed the rounding");
+
+    // A data set of another model's width is refused in one line naming
+    // the file, and nothing is written.
+    let wrong = tmp.path().join("wrong.npz");
+    exporter::npz::write_npz(
+        &wrong,
+        &[
+            ("X", vec![2, 4], vec![0.0; 8]),
+            ("phase", vec![2], vec![0.0; 2]),
+        ],
+    )
+    .unwrap();
+    let (o, blob, report) = export("wrong", &["--calibration", wrong.to_str().unwrap()]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert_eq!(e.trim().lines().count(), 1, "{e}");
+    assert!(e.contains("wrong.npz") && e.contains("4 columns"), "{e}");
+    assert!(!blob.exists() && !report.exists());
+}

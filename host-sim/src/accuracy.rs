@@ -63,7 +63,12 @@ pub fn sample_matrix(net: &Net, n: usize, spread: f64, seed: u64) -> (Matrix<f32
 
 /// Measures int16 and int8 cubic blobs and the demo's constant mode against
 /// the exact cubic float reference.
-pub fn measure(tables: &PfnnTables, samples: usize, seed: u64) -> Result<Accuracy> {
+pub fn measure(
+    tables: &PfnnTables,
+    samples: usize,
+    seed: u64,
+    int8: &crate::quant_knobs::Int8Knobs,
+) -> Result<Accuracy> {
     let (cubic, residual) = Net::from_pfnn_tables(tables, GatingMode::Cubic);
     let (constant, _) = Net::from_pfnn_tables(tables, GatingMode::Constant);
     let opts16 = QuantOptions {
@@ -75,7 +80,7 @@ pub fn measure(tables: &PfnnTables, samples: usize, seed: u64) -> Result<Accurac
         ..QuantOptions::default()
     };
     let (blob16, int16_report) = export(&cubic, residual, &opts16)?;
-    let (blob8, int8_report) = export(&cubic, residual, &opts8)?;
+    let (blob8, int8_report) = int8.export(&cubic, residual, opts8)?;
     let mut rows = Vec::new();
     for (i, &spread) in SPREADS.iter().enumerate() {
         let (x, p) = sample_matrix(&cubic, samples, spread, seed.wrapping_add(i as u64));

@@ -85,6 +85,8 @@ enum Command {
         /// Also write every figure as JSON.
         #[arg(long)]
         json: Option<PathBuf>,
+        #[command(flatten)]
+        int8: host_sim::quant_knobs::Int8Knobs,
     },
     /// Run a blob on the Cortex-M4 firmware under QEMU, bit for bit against the host runtime.
     Target {
@@ -245,9 +247,10 @@ fn run(cli: Cli) -> Result<()> {
             samples,
             seed,
             json,
+            int8,
         } => {
             let tables = exporter::pfnn_dir::load_pfnn_dir_auto(&pfnn, None)?;
-            let a = accuracy::measure(&tables, samples, seed)?;
+            let a = accuracy::measure(&tables, samples, seed, &int8)?;
             print!("{}", a.table());
             println!(
                 "blob sizes: int16 cubic {} bytes, int8 cubic {} bytes",

@@ -11,7 +11,7 @@ use phasegate_tests::real_pfnn_dir as pfnn_dir;
 fn long_rollouts_stay_with_the_float_controller() {
     let Some(dir) = pfnn_dir() else { return };
     let net = load_cubic(&dir).unwrap();
-    let blobs = export_blobs(&net).unwrap();
+    let blobs = export_blobs(&net, &Default::default()).unwrap();
     let f = measure(&net, &blobs, &[], 600, None).unwrap();
     println!("{}", f.table());
     assert_eq!(f.scripts.len(), 6);

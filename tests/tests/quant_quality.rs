@@ -53,3 +53,60 @@ fn error_aware_rounding_lowers_the_real_pfnn_int8_error() {
     assert!(ra[3] < 0.18, "spread 1: {}", ra[3]);
     assert!(ma < 4.0, "max {ma}");
 }
+
+/// `--int16-budget` on the default model: no budget is the plain int8
+/// blob, a budget buys whole layers that fit, the report adds up.
+#[test]
+fn int16_budget_buys_measured_layers_within_the_budget() {
+    use exporter::budget::export_with_int16_budget;
+    let net = host_sim::default_model::generate();
+    let opts = QuantOptions::default();
+    let plain = export(&net, None, &opts).unwrap().0;
+    let budgeted = |budget| export_with_int16_budget(&net, None, &opts, budget, |_, _| {}).unwrap();
+
+    let (blob, report) = budgeted(0);
+    assert_eq!(blob, plain, "a zero budget changes nothing");
+    let b = report.int16_budget.unwrap();
+    assert!(b.int16_layers.is_empty() && b.spent_bytes == 0);
+    assert_eq!(b.rms, b.rms_int8);
+    assert_eq!(b.trials.len(), net.layers.len(), "every layer tried once");
+    assert!(b
+        .trials
+        .iter()
+        .all(|t| t.extra_bytes > 0 && t.rms.is_finite()));
+
+    // Just enough for the best layer per byte.
+    let best = b
+        .trials
+        .iter()
+        .filter(|t| t.rms < b.rms_int8)
+        .max_by(|x, y| {
+            let g = |t: &exporter::budget::Trial| (b.rms_int8 - t.rms) / t.extra_bytes as f64;
+            g(x).total_cmp(&g(y))
+        })
+        .expect("some layer gains from int16");
+    let (blob, report) = budgeted(best.extra_bytes);
+    let r = report.int16_budget.unwrap();
+    assert_eq!(r.int16_layers, vec![best.layer]);
+    assert_eq!(r.spent_bytes, best.extra_bytes);
+    assert_eq!(blob.len(), plain.len() + r.spent_bytes);
+    assert_eq!(report.weight_format, "mixed");
+    assert_eq!(
+        report.layers[best.layer].weights, "int16",
+        "{:?}",
+        report.layers[best.layer]
+    );
+    assert!(r.rms < r.rms_int8);
+
+    // Room for everything: every layer that helps is bought, in order of
+    // gain, and the blob never exceeds int8 + budget.
+    let all = plain.len();
+    let (blob, report) = budgeted(all);
+    let r = report.int16_budget.unwrap();
+    assert!(r.spent_bytes <= all && blob.len() == plain.len() + r.spent_bytes);
+    assert!(!r.int16_layers.is_empty() && r.rms <= b.rms_int8);
+    println!(
+        "default model: int8 rms {:.4}, budget {all}: layers {:?}, rms {:.4}, +{} bytes",
+        r.rms_int8, r.int16_layers, r.rms, r.spent_bytes
+    );
+}

@@ -17,6 +17,7 @@ use super::metrics::{sanity, Sanity};
 use super::script::{Script, BUILTIN};
 use super::{run, Rollout};
 use crate::controller::{reference_f32, reference_f64, Controller, FixedController};
+use crate::quant_knobs::Int8Knobs;
 
 /// The controllers compared with the f64 reference, in table order.
 pub const VARIANTS: [&str; 3] = ["f32 float", "int16 cubic", "int8 cubic"];
@@ -62,18 +63,16 @@ pub struct Blobs {
     pub int8: Vec<u8>,
 }
 
-/// Exports the cubic float network at both weight widths.
-pub fn export_blobs(net: &Net) -> Result<Blobs> {
-    let blob = |weights| -> Result<Vec<u8>> {
-        let opts = QuantOptions {
-            weights,
-            ..Default::default()
-        };
-        Ok(export(net, None, &opts)?.0)
+/// Exports the cubic float network at both weight widths, the int8 blob
+/// with `int8`'s quantiser knobs.
+pub fn export_blobs(net: &Net, int8: &Int8Knobs) -> Result<Blobs> {
+    let opts = |weights| QuantOptions {
+        weights,
+        ..Default::default()
     };
     Ok(Blobs {
-        int16: blob(WeightFormat::I16)?,
-        int8: blob(WeightFormat::I8)?,
+        int16: export(net, None, &opts(WeightFormat::I16))?.0,
+        int8: int8.export(net, None, opts(WeightFormat::I8))?.0,
     })
 }
 
@@ -322,12 +321,14 @@ pub struct FidelityArgs {
     /// Also write the figures as JSON.
     #[arg(long)]
     pub json: Option<std::path::PathBuf>,
+    #[command(flatten)]
+    pub int8: Int8Knobs,
 }
 
 /// `host-sim fidelity`: prints the table; fails if a bar does not hold.
 pub fn fidelity_cmd(args: &FidelityArgs) -> Result<()> {
     let net = load_cubic(&args.pfnn)?;
-    let blobs = export_blobs(&net)?;
+    let blobs = export_blobs(&net, &args.int8)?;
     let f = measure(
         &net,
         &blobs,
