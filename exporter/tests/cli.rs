@@ -692,4 +692,15 @@ fn calibration_rollouts_reach_the_quantiser_and_the_report() {
     assert_eq!(e.trim().lines().count(), 1, "{e}");
     assert!(e.contains("wrong.npz") && e.contains("4 columns"), "{e}");
     assert!(!blob.exists() && !report.exists());
+
+    // The int16 budget: spent (and reported) on an int8 blob, refused on
+    // an int16 one.
+    let (o, _, report) = export("budget", &["--int16-budget", "100000"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let b = &json(&report)["int16_budget"];
+    assert!(b["spent_bytes"].as_u64().unwrap() <= 100_000, "{b}");
+    assert_eq!(b["trials"][0]["round"], 0, "{b}");
+    let (o, blob, _) = export("wide", &["--int16-budget", "1000", "--weight-bits", "16"]);
+    assert!(!o.status.success() && !blob.exists());
+    assert!(stderr(&o).contains("--int16-budget"), "{}", stderr(&o));
 }
