@@ -28,7 +28,7 @@ use crate::quantise::QuantOptions;
 /// Normal evaluation samples (the recorded rows come on top).
 const EVAL_SAMPLES: usize = 256;
 /// Keeps the evaluation inputs apart from the calibration inputs.
-const EVAL_SEED: u64 = 0xB0D6_E7;
+const EVAL_SEED: u64 = 0x00B0_D6E7;
 /// Activation buffer elements of the evaluating runtime: any width a blob
 /// header can declare.
 const CAPACITY: usize = u16::MAX as usize;
@@ -119,7 +119,7 @@ pub fn export_with_int16_budget(
                 continue;
             }
             let gain = (rms - e) / extra.max(1) as f64;
-            if best.as_ref().map_or(true, |b| gain > b.0) {
+            if best.as_ref().is_none_or(|b| gain > b.0) {
                 best = Some((gain, l, b, r, e));
             }
         }

@@ -20,7 +20,7 @@ fn skip(why: &str) {
 fn fixed_point_meets_the_accuracy_bars() {
     let Some(dir) = pfnn_dir() else { return };
     let tables = exporter::pfnn_dir::load_pfnn_dir(&dir).unwrap();
-    let a = measure(&tables, 64, 7).unwrap();
+    let a = measure(&tables, 64, 7, &Default::default()).unwrap();
     println!("{}", a.table());
     for r in &a.rows {
         let (i16, i8) = (&r.int16.overall, &r.int8.overall);
