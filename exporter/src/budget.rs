@@ -22,7 +22,7 @@ use serde::Serialize;
 use crate::calibrate::{normal_inputs, Samples};
 use crate::control_points::Residual;
 use crate::export::{export, ExportError, ExportReport};
-use crate::net::Net;
+use crate::net::{GraphOp, Net, Wiring};
 use crate::quantise::QuantOptions;
 
 /// Normal evaluation samples (the recorded rows come on top).
@@ -39,7 +39,7 @@ const CAPACITY: usize = u16::MAX as usize;
 pub struct Trial {
     /// Greedy round (0 first).
     pub round: usize,
-    /// Layer index.
+    /// Layer index (of a graph: node index).
     pub layer: usize,
     /// Bytes the blob grows by.
     pub extra_bytes: usize,
@@ -56,7 +56,8 @@ pub struct BudgetReport {
     pub budget_bytes: usize,
     /// Bytes spent.
     pub spent_bytes: usize,
-    /// Layers given int16 weights, in the order they were chosen.
+    /// Layers (of a graph: nodes) given int16 weights, in the order they
+    /// were chosen.
     pub int16_layers: Vec<usize>,
     /// Output RMS of the all-int8 blob, output standard deviations.
     pub rms_int8: f64,
@@ -78,7 +79,8 @@ pub fn export_with_int16_budget(
     mut progress: impl FnMut(usize, usize),
 ) -> Result<(Vec<u8>, ExportReport), ExportError> {
     let eval = eval_inputs(net, opts);
-    let layers = net.layers.len();
+    let keys = weight_keys(net);
+    let layers = keys.len();
     let total = layers * (layers + 1) / 2 + 1;
     let mut done = 0;
     let mut try_layers = |chosen: &[usize]| -> Result<(Vec<u8>, ExportReport, f64), ExportError> {
@@ -95,19 +97,19 @@ pub fn export_with_int16_budget(
     let (mut rms, mut chosen, mut trials) = (rms_int8, Vec::<usize>::new(), Vec::<Trial>::new());
     // A layer's extra bytes do not depend on the others: measured in the
     // first round, they rule out later trials that cannot fit.
-    let mut extra_of = vec![0usize; layers];
+    let mut extra_of = std::collections::BTreeMap::new();
     for round in 0..layers {
         let spent = spent_bytes(&trials);
         let mut best: Option<(f64, usize, Vec<u8>, ExportReport, f64)> = None;
-        for l in (0..layers).filter(|l| !chosen.contains(l)) {
-            if round > 0 && spent + extra_of[l] > budget {
+        for &l in keys.iter().filter(|l| !chosen.contains(l)) {
+            if round > 0 && spent + extra_of.get(&l).copied().unwrap_or(0) > budget {
                 continue;
             }
             let mut with = chosen.clone();
             with.push(l);
             let (b, r, e) = try_layers(&with)?;
             let extra = b.len().saturating_sub(blob.len());
-            extra_of[l] = extra;
+            extra_of.insert(l, extra);
             trials.push(Trial {
                 round,
                 layer: l,
@@ -140,6 +142,21 @@ pub fn export_with_int16_budget(
         trials,
     });
     Ok((blob, report))
+}
+
+/// What `QuantOptions::layer_weights` is keyed by: layer indices of a
+/// chain, the indices of a graph's layer nodes.
+fn weight_keys(net: &Net) -> Vec<usize> {
+    match &net.wiring {
+        Wiring::Chain => (0..net.layers.len()).collect(),
+        Wiring::Graph(g) => g
+            .nodes
+            .iter()
+            .enumerate()
+            .filter(|(_, n)| matches!(n.op, GraphOp::Layer { .. }))
+            .map(|(i, _)| i)
+            .collect(),
+    }
 }
 
 fn spent_bytes(trials: &[Trial]) -> usize {

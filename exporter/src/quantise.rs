@@ -611,6 +611,16 @@ fn chain_moments(net: &Net, opts: &QuantOptions) -> Vec<Option<moments::LayerMom
     if opts.compensation_samples == 0 {
         return vec![None; net.layers.len()];
     }
+    let samples = compensation_inputs(net, opts);
+    moments::chain_moments(net, &samples, |l| {
+        opts.weights_of(l) == WeightFormat::I8
+            && matches!(net.layers.get(l), Some(crate::net::NetLayer::Dense(_)))
+    })
+}
+
+/// The inputs error-aware rounding takes its moments from:
+/// `compensation_samples` normal samples, then the recorded rows.
+fn compensation_inputs(net: &Net, opts: &QuantOptions) -> crate::calibrate::Samples {
     let mut samples = crate::calibrate::normal_inputs(
         &net.xmean.to_vec(),
         &net.xstd.to_vec(),
@@ -621,10 +631,7 @@ fn chain_moments(net: &Net, opts: &QuantOptions) -> Vec<Option<moments::LayerMom
     if let Some(r) = &opts.calibration_data {
         samples.extend(&r.samples);
     }
-    moments::chain_moments(net, &samples, |l| {
-        opts.weights_of(l) == WeightFormat::I8
-            && matches!(net.layers.get(l), Some(crate::net::NetLayer::Dense(_)))
-    })
+    samples
 }
 
 /// Keeps the compensation inputs apart from the calibration inputs.

@@ -61,10 +61,33 @@ fn the_same_graph_exports_the_same_blob_from_npz_and_safetensors() {
     assert_eq!(golden, blob_a, "regenerate with host-sim golden --write");
 }
 
-/// Fixed point against the float graph on 512 inputs drawn like the
-/// calibration's (normal around the normalisation means), errors in units of
-/// each output's standard deviation. Measured: see the assertion message
-/// (`--nocapture`).
+/// RMS and max of the fixed-point error of `net` exported with `opts`,
+/// on 512 inputs drawn like the calibration's (normal around the
+/// normalisation means), in units of each output's standard deviation.
+fn fixed_error(net: &Net, opts: &QuantOptions) -> (f64, f64) {
+    let (blob, _) = export(net, None, opts).unwrap();
+    let model = Model::from_bytes(&blob).unwrap();
+    let mut rt: Box<Runtime<'_, 256>> = Box::new(Runtime::new(model).unwrap());
+    let s = normal_inputs(&net.xmean.to_vec(), &net.xstd.to_vec(), 512, 1.0, 7);
+    let (mut sq, mut worst, mut n) = (0.0f64, 0.0f64, 0usize);
+    let mut y = vec![0f32; net.output_dim()];
+    for (x, &p) in s.inputs.iter().zip(&s.phases) {
+        let xf: Vec<f32> = x.iter().map(|&v| v as f32).collect();
+        rt.run(Phase::from_radians(p as f32).unwrap(), &xf, &mut y)
+            .unwrap();
+        let want = net.forward(x, p);
+        for ((a, b), sd) in y.iter().zip(&want).zip(&net.ystd) {
+            let e = (f64::from(*a) - b).abs() / sd;
+            sq += e * e;
+            worst = worst.max(e);
+            n += 1;
+        }
+    }
+    ((sq / n as f64).sqrt(), worst)
+}
+
+/// Fixed point against the float graph ([`fixed_error`]). Measured: see
+/// the assertion message (`--nocapture`).
 #[test]
 fn fixed_point_error_against_the_float_graph_is_bounded() {
     let dir = tempfile::tempdir().unwrap();
@@ -77,31 +100,33 @@ fn fixed_point_error_against_the_float_graph_is_bounded() {
             weights,
             ..QuantOptions::default()
         };
-        let (blob, _) = export(&net, None, &opts).unwrap();
-        let model = Model::from_bytes(&blob).unwrap();
-        let mut rt: Box<Runtime<'_, 256>> = Box::new(Runtime::new(model).unwrap());
-        let s = normal_inputs(&net.xmean.to_vec(), &net.xstd.to_vec(), 512, 1.0, 7);
-        let (mut sq, mut worst, mut n) = (0.0f64, 0.0f64, 0usize);
-        let mut y = vec![0f32; 10];
-        for (x, &p) in s.inputs.iter().zip(&s.phases) {
-            let xf: Vec<f32> = x.iter().map(|&v| v as f32).collect();
-            rt.run(Phase::from_radians(p as f32).unwrap(), &xf, &mut y)
-                .unwrap();
-            let want = net.forward(x, p);
-            for ((a, b), sd) in y.iter().zip(&want).zip(&net.ystd) {
-                let e = (f64::from(*a) - b).abs() / sd;
-                sq += e * e;
-                worst = worst.max(e);
-                n += 1;
-            }
-        }
-        let rms = (sq / n as f64).sqrt();
+        let (rms, worst) = fixed_error(&net, &opts);
         println!("{weights:?}: error / output std: rms {rms:.5}, max {worst:.5}");
         assert!(
             rms <= rms_bound && worst <= max_bound,
             "{weights:?}: rms {rms:.5} (bound {rms_bound}), max {worst:.5} (bound {max_bound})"
         );
     }
+}
+
+/// Error-aware rounding reaches the dense nodes of a graph (softmax-gated,
+/// ungated, on concatenations): the int8 error falls, the blob size stays.
+#[test]
+fn error_aware_rounding_lowers_the_graph_int8_error() {
+    let net = branching_net(SEED);
+    let opts = |compensation_samples| QuantOptions {
+        compensation_samples,
+        ..QuantOptions::default()
+    };
+    let (a, b) = (
+        export(&net, None, &opts(0)).unwrap().0,
+        export(&net, None, &opts(4096)).unwrap().0,
+    );
+    assert_eq!(a.len(), b.len());
+    assert_ne!(a, b);
+    let ((rn, mn), (ra, ma)) = (fixed_error(&net, &opts(0)), fixed_error(&net, &opts(4096)));
+    println!("graph int8: to nearest rms {rn:.5} max {mn:.5}; error-aware rms {ra:.5} max {ma:.5}");
+    assert!(ra < 0.9 * rn, "rms {ra} vs {rn}");
 }
 
 /// The exporter's arena plan uses no more than the largest total of
@@ -217,4 +242,102 @@ fn the_float_graph_wires_what_the_description_says() {
         t.inputs[dec1].to_vec(),
         t.out[dec1 - 1].iter().take(16).copied().collect::<Vec<_>>()
     );
+}
+
+/// The graph moments (summed a chunk at a time) equal the per-sample sums
+/// over each node's concatenated input and its gate's coefficients.
+#[test]
+fn graph_moments_equal_the_per_sample_sums() {
+    use exporter::quantise::moments::graph_moments;
+    use phasegate::blob::GateSource;
+    let net = branching_net(SEED);
+    let Wiring::Graph(g) = &net.wiring else {
+        panic!("a graph")
+    };
+    let samples = normal_inputs(&net.xmean.to_vec(), &net.xstd.to_vec(), 600, 1.0, 3);
+    let got = graph_moments(&net, g, &samples, |i| i % 2 == 0);
+    let n = samples.inputs.len() as f64;
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-9 * (1.0 + b.abs());
+    let mut checked = 0;
+    for (i, node) in g.nodes.iter().enumerate() {
+        let GraphOp::Layer { layer, .. } = node.op else {
+            assert!(got[i].is_none(), "node {i} is no layer");
+            continue;
+        };
+        let Some(m) = &got[i] else {
+            assert!(i % 2 == 1, "node {i} was wanted");
+            continue;
+        };
+        let experts = net.layers[layer].experts().max(1);
+        let dim = net.layers[layer].in_dim();
+        let mut second = vec![vec![0.0; dim * dim]; experts];
+        let mut gm = vec![0.0; experts];
+        for (x, &p) in samples.inputs.iter().zip(&samples.phases) {
+            let t = net.graph_trace(g, x, p);
+            let gate: Vec<f64> = match node.gate {
+                GateSource::None => vec![1.0],
+                GateSource::Node(j) => t.out[usize::from(j)].to_vec(),
+                GateSource::Phase => unreachable!("the proof model has no phase gate"),
+            };
+            let h = &t.inputs[i];
+            for (k, &gk) in gate.iter().enumerate() {
+                gm[k] += gk / n;
+                for a in 0..dim {
+                    for b in 0..dim {
+                        second[k][a * dim + b] += gk * gk * h[a] * h[b] / n;
+                    }
+                }
+            }
+        }
+        for k in 0..experts {
+            assert!(close(m.gate_mean[k], gm[k]), "node {i} expert {k}");
+            assert!(
+                m.second[k]
+                    .iter()
+                    .zip(&second[k])
+                    .all(|(a, b)| close(*a, *b)),
+                "node {i} expert {k}"
+            );
+        }
+        checked += 1;
+    }
+    assert!(checked >= 4, "{checked} nodes checked");
+}
+
+/// `--int16-budget` on a graph tries its layer nodes (not its softmax
+/// node) and buys the ones it chooses as int16 nodes.
+#[test]
+fn int16_budget_buys_graph_layer_nodes() {
+    let net = branching_net(SEED);
+    let Wiring::Graph(g) = &net.wiring else {
+        panic!("a graph")
+    };
+    let (blob, report) = exporter::budget::export_with_int16_budget(
+        &net,
+        None,
+        &QuantOptions::default(),
+        4000,
+        |_, _| {},
+    )
+    .unwrap();
+    let b = report.int16_budget.unwrap();
+    let round0: Vec<usize> = b
+        .trials
+        .iter()
+        .filter(|t| t.round == 0)
+        .map(|t| t.layer)
+        .collect();
+    let layer_nodes: Vec<usize> = (0..g.nodes.len())
+        .filter(|&i| matches!(g.nodes[i].op, GraphOp::Layer { .. }))
+        .collect();
+    assert_eq!(round0, layer_nodes);
+    assert!(!b.int16_layers.is_empty() && b.spent_bytes <= 4000, "{b:?}");
+    let model = Model::from_bytes(&blob).unwrap();
+    for &i in &b.int16_layers {
+        let NodeOp::Layer(l) = model.nodes().iter().nth(i).unwrap().op else {
+            panic!("node {i} is a layer")
+        };
+        assert_eq!(l.weights, WeightFormat::I16);
+    }
+    assert!(b.rms < b.rms_int8);
 }

@@ -68,6 +68,27 @@ fn scales_of<'a>(input: &'a [f64], rows: &'a [Vec<f64>], s: &Slice) -> &'a [f64]
     &v[a..a + usize::from(s.len)]
 }
 
+/// The input moments of the graph's int8 dense nodes, from
+/// `compensation_samples` normal inputs and the recorded rows, for
+/// error-aware rounding (none when `compensation_samples` is 0).
+fn graph_moments(
+    net: &Net,
+    g: &Graph,
+    opts: &QuantOptions,
+) -> Vec<Option<super::moments::LayerMoments>> {
+    if opts.compensation_samples == 0 {
+        return vec![None; g.nodes.len()];
+    }
+    let samples = super::compensation_inputs(net, opts);
+    super::moments::graph_moments(net, g, &samples, |i| {
+        opts.weights_of(i) == phasegate::blob::WeightFormat::I8
+            && matches!(
+                g.nodes[i].op,
+                GraphOp::Layer { layer, .. } if matches!(net.layers.get(layer), Some(crate::net::NetLayer::Dense(_)))
+            )
+    })
+}
+
 /// Quantises a graph net: see the module documentation.
 pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quantised, QuantError> {
     let phase_experts = g.phase_experts(&net.layers);
@@ -77,6 +98,7 @@ pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quant
         Gating::Single
     };
     let stats = calibrate(net, g, opts);
+    let moments = graph_moments(net, g, opts);
     let input_frac = frac_for(opts.input_range_sigma, 1.0, 15);
     let input_scales = vec![f64::from(1u32 << input_frac); net.input_dim()];
     // Row formats: each row as fine as its range allows, then the logits of
@@ -170,7 +192,7 @@ pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quant
                     in_power: Some(&stats[i].input_ms),
                     mid_power: stats[i].mid_ms.as_deref(),
                     headroom: opts.headroom,
-                    in_moments: None,
+                    in_moments: moments.get(i).and_then(Option::as_ref),
                 };
                 let (ql, rep) = l.quantise(&spec)?;
                 reports.push(QuantLayerReport {

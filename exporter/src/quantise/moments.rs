@@ -13,7 +13,9 @@
 use ndarray::{Array1, Array2, Axis};
 
 use crate::calibrate::Samples;
-use crate::net::{elu, Net, NetLayer};
+use phasegate::blob::GateSource;
+
+use crate::net::{elu, Graph, GraphOp, Net, NetLayer};
 
 /// Samples run through the network together.
 const CHUNK: usize = 512;
@@ -107,6 +109,69 @@ pub fn chain_moments(
             } else {
                 pre.mapv(elu)
             };
+        }
+    }
+    let n = samples.inputs.len().max(1) as f64;
+    out.into_iter().map(|m| m.map(|m| m.finish(n))).collect()
+}
+
+/// The moments of every layer node `i` of graph `g` for which `wanted(i)`
+/// (other nodes get `None`), over `samples`: each node's concatenated
+/// input, with the coefficients its gate gives (one expert of weight 1
+/// for an ungated node). The graph runs one sample at a time
+/// ([`Net::graph_trace`]); the moments are summed a chunk at a time.
+pub fn graph_moments(
+    net: &Net,
+    g: &Graph,
+    samples: &Samples,
+    wanted: impl Fn(usize) -> bool,
+) -> Vec<Option<LayerMoments>> {
+    let layer_of = |n: &crate::net::GraphNode| match n.op {
+        GraphOp::Layer { layer, .. } => net.layers.get(layer),
+        _ => None,
+    };
+    let mut out: Vec<Option<LayerMoments>> = g
+        .nodes
+        .iter()
+        .enumerate()
+        .map(|(i, n)| {
+            let l = layer_of(n).filter(|_| wanted(i))?;
+            Some(LayerMoments::new(l.experts().max(1), l.in_dim()))
+        })
+        .collect();
+    let phase_experts = g.phase_experts(&net.layers);
+    for (xs, ps) in samples
+        .inputs
+        .chunks(CHUNK)
+        .zip(samples.phases.chunks(CHUNK))
+    {
+        let traces: Vec<_> = xs
+            .iter()
+            .zip(ps)
+            .map(|(x, &p)| net.graph_trace(g, x, p))
+            .collect();
+        for (i, (n, m)) in g.nodes.iter().zip(&mut out).enumerate() {
+            let Some(m) = m else { continue };
+            let experts = m.gate_mean.len();
+            let h = Array2::from_shape_fn((traces.len(), traces[0].inputs[i].len()), |(r, j)| {
+                traces[r].inputs[i][j]
+            });
+            let mut gates = Array2::zeros((traces.len(), experts));
+            for (r, (t, &p)) in traces.iter().zip(ps).enumerate() {
+                let coeffs: Vec<(usize, f64)> = match n.gate {
+                    GateSource::None => vec![(0, 1.0)],
+                    GateSource::Phase => net.mode.gate(phase_experts, p),
+                    GateSource::Node(j) => {
+                        t.out[usize::from(j)].iter().copied().enumerate().collect()
+                    }
+                };
+                for (k, v) in coeffs {
+                    if let Some(c) = gates.get_mut((r, k)) {
+                        *c = v;
+                    }
+                }
+            }
+            m.add(&h, &gates);
         }
     }
     let n = samples.inputs.len().max(1) as f64;
