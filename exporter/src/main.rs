@@ -98,6 +98,18 @@ enum Command {
         #[command(flatten)]
         out: OutputArgs,
     },
+    /// Import a trained OMG model (FE or FS; tools/omg/train's
+    /// model.safetensors + config.json) as a graph (docs/omg.md).
+    Omg {
+        /// The weights and normalisation (model.safetensors).
+        #[arg(long)]
+        weights: PathBuf,
+        /// The model's config.json (sizes, slices, out_slices, phase update).
+        #[arg(long)]
+        config: PathBuf,
+        #[command(flatten)]
+        out: OutputArgs,
+    },
     /// Decompose a dense model's layers by CP-ALS and write a CP blob.
     Cp(exporter::cp::cli::CpArgs),
     /// Write a blob from trained CP factors (.npz or .safetensors).
@@ -287,6 +299,14 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let net = exporter::net::json::read_graph(&graph, &weights)?;
             export(&net, None, &out)
+        }
+        Command::Omg {
+            weights,
+            config,
+            out,
+        } => {
+            let omg = exporter::net::omg::read_omg(&weights, &config)?;
+            export(&omg.net, None, &out)
         }
         Command::Cp(a) => exporter::cp::cli::cp(&a),
         Command::CpImport(a) => exporter::cp::cli::cp_import(&a),
