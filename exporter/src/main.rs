@@ -57,7 +57,16 @@ struct OutputArgs {
     /// rollout worse.
     #[arg(long, default_value_t = 0)]
     compensation_samples: usize,
+    /// Factor between the largest calibrated value of a row and its
+    /// format's range (default 1.5; `exporter omg`: 3, because its
+    /// calibration inputs, independent normal features, reach smaller
+    /// activations than real motion frames, docs/omg.md).
+    #[arg(long)]
+    headroom: Option<f64>,
 }
+
+/// The quantiser's default headroom.
+const DEFAULT_HEADROOM: f64 = 1.5;
 
 fn parse_bits(s: &str) -> Result<u8, String> {
     match s {
@@ -181,6 +190,7 @@ fn export(
     net: &Net,
     residual: Option<exporter::control_points::Residual>,
     q: &OutputArgs,
+    default_headroom: f64,
 ) -> Result<()> {
     let weights = if q.weight_bits == 16 {
         WeightFormat::I16
@@ -193,8 +203,13 @@ fn export(
             q.input_range_sigma
         );
     }
+    let headroom = q.headroom.unwrap_or(default_headroom);
+    if !(headroom.is_finite() && headroom >= 1.0) {
+        bail!("--headroom {headroom} must be at least 1");
+    }
     let opts = QuantOptions {
         weights,
+        headroom,
         input_range_sigma: q.input_range_sigma,
         compensation_samples: q.compensation_samples,
         ..QuantOptions::default()
@@ -286,11 +301,11 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Pfnn { weights, quant } => {
             let (net, residual) = load_pfnn_dir(&weights, quant.gating.into())?;
-            export(&net, residual, &quant.out)
+            export(&net, residual, &quant.out, DEFAULT_HEADROOM)
         }
         Command::Npz { weights, quant } => {
             let net = exporter::npz::pfnn_from_npz(&weights, quant.gating.into())?;
-            export(&net, None, &quant.out)
+            export(&net, None, &quant.out, DEFAULT_HEADROOM)
         }
         Command::Graph {
             graph,
@@ -298,7 +313,7 @@ fn run(cli: Cli) -> Result<()> {
             out,
         } => {
             let net = exporter::net::json::read_graph(&graph, &weights)?;
-            export(&net, None, &out)
+            export(&net, None, &out, DEFAULT_HEADROOM)
         }
         Command::Omg {
             weights,
@@ -306,7 +321,7 @@ fn run(cli: Cli) -> Result<()> {
             out,
         } => {
             let omg = exporter::net::omg::read_omg(&weights, &config)?;
-            export(&omg.net, None, &out)
+            export(&omg.net, None, &out, exporter::net::omg::HEADROOM)
         }
         Command::Cp(a) => exporter::cp::cli::cp(&a),
         Command::CpImport(a) => exporter::cp::cli::cp_import(&a),
