@@ -37,7 +37,10 @@ impl Clips {
     fn read(path: &Path) -> Result<Clips> {
         let (shape, data) = crate::npy::read_array_f32(path)?;
         let [c, t, w] = shape[..] else {
-            bail!("{}: shape {shape:?}, expected (clips, frames, width)", path.display());
+            bail!(
+                "{}: shape {shape:?}, expected (clips, frames, width)",
+                path.display()
+            );
         };
         Ok(Clips {
             dims: [c, t, w],
@@ -88,7 +91,11 @@ pub fn load_dir(dir: &Path) -> Result<OmgDir> {
         ("ref_rollout_targets", &refs.targets, t),
     ] {
         if c.dims[2] != w {
-            bail!("{}/{name}.npy: width {}, expected {w}", dir.display(), c.dims[2]);
+            bail!(
+                "{}/{name}.npy: width {}, expected {w}",
+                dir.display(),
+                c.dims[2]
+            );
         }
     }
     Ok(OmgDir {
@@ -300,10 +307,7 @@ fn frames_of(c: &Clips, clip: usize) -> Vec<Vec<f64>> {
 }
 
 /// Every one-step output of `step` on the reference inputs, all clips.
-fn one_step(
-    d: &OmgDir,
-    mut step: impl FnMut(&[f64]) -> Result<Vec<f64>>,
-) -> Result<Vec<Vec<f64>>> {
+fn one_step(d: &OmgDir, mut step: impl FnMut(&[f64]) -> Result<Vec<f64>>) -> Result<Vec<Vec<f64>>> {
     let [clips, frames, _] = d.refs.inputs.dims;
     let mut out = Vec::new();
     for c in 0..clips {
@@ -373,7 +377,9 @@ pub fn fixed_agreement(d: &OmgDir, blob: &[u8], weights: &'static str) -> Result
     let ro_float = float_rollouts(d)?;
     let mut ro_fixed = Vec::new();
     for c in 0..d.refs.targets.dims[0] {
-        ro_fixed.extend(reference_rollout(d, c, |x| Ok(d.omg.frame(&fx.run(x)?, x)))?);
+        ro_fixed.extend(reference_rollout(d, c, |x| {
+            Ok(d.omg.frame(&fx.run(x)?, x))
+        })?);
     }
     Ok(FixedAgreement {
         weights,

@@ -338,7 +338,10 @@ fn normalisation(
         for (what, cfgv, ours) in [("mean", &nm.mean, &mean), ("std", &nm.std, &std)] {
             let Some(v) = cfgv else { continue };
             if v.len() != n {
-                bail!("config normalisation.{what} has {} values, not {n}", v.len());
+                bail!(
+                    "config normalisation.{what} has {} values, not {n}",
+                    v.len()
+                );
             }
             if let Some(i) = (0..n).find(|&i| (v[i] - ours[i]).abs() > 1e-6 * (1.0 + v[i].abs())) {
                 bail!(
@@ -384,7 +387,15 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
             );
         }
     }
-    for sub in ["pos", "rot", "vel", "pos_cost", "rot_cost", "target_pos", "target_rot"] {
+    for sub in [
+        "pos",
+        "rot",
+        "vel",
+        "pos_cost",
+        "rot_cost",
+        "target_pos",
+        "target_rot",
+    ] {
         cfg.block(sub)?;
     }
     if cfg.key_joint_indices.len() != k || cfg.key_joint_indices.iter().any(|&i| i >= j) {
@@ -417,7 +428,9 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
         None => (pose.clone(), None),
         Some(cols) => {
             let (&lo, &hi) = (
-                cols.iter().min().ok_or_else(|| anyhow!("encoder_columns is empty"))?,
+                cols.iter()
+                    .min()
+                    .ok_or_else(|| anyhow!("encoder_columns is empty"))?,
                 cols.iter().max().unwrap_or(&0),
             );
             if hi >= cfg.model_width {
@@ -427,7 +440,14 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
         }
     };
     let enc_cols = enc_w0.as_ref().map_or(enc_in.len(), Vec::len);
-    let gate = mlp(arrays, "gate", phase.len(), s.gate_hidden, s.experts, "gate")?;
+    let gate = mlp(
+        arrays,
+        "gate",
+        phase.len(),
+        s.gate_hidden,
+        s.experts,
+        "gate",
+    )?;
     let mut enc = mlp(arrays, "enc", enc_cols, s.ae_hidden, s.latent, "encoder")?;
     if let Some(cols) = &enc_w0 {
         let w = &enc[0].w[0];
@@ -504,14 +524,56 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     };
     let whole = |n: usize, width: usize| node_slice(n, &(0..width));
     let [g0, g1, g2] = gate;
-    let mut prev = add("gate0", Some(g0), vec![input_slice(&phase)?], GateSource::None, true);
-    prev = add("gate1", Some(g1), vec![whole(prev, s.gate_hidden)?], GateSource::None, true);
-    let logits = add("gate2", Some(g2), vec![whole(prev, s.gate_hidden)?], GateSource::None, false);
-    let alpha = add("alpha", None, vec![whole(logits, s.experts)?], GateSource::None, false);
+    let mut prev = add(
+        "gate0",
+        Some(g0),
+        vec![input_slice(&phase)?],
+        GateSource::None,
+        true,
+    );
+    prev = add(
+        "gate1",
+        Some(g1),
+        vec![whole(prev, s.gate_hidden)?],
+        GateSource::None,
+        true,
+    );
+    let logits = add(
+        "gate2",
+        Some(g2),
+        vec![whole(prev, s.gate_hidden)?],
+        GateSource::None,
+        false,
+    );
+    let alpha = add(
+        "alpha",
+        None,
+        vec![whole(logits, s.experts)?],
+        GateSource::None,
+        false,
+    );
     let [e0, e1, e2] = enc;
-    prev = add("enc0", Some(e0), vec![input_slice(&enc_in)?], GateSource::None, true);
-    prev = add("enc1", Some(e1), vec![whole(prev, s.ae_hidden)?], GateSource::None, true);
-    let zn = add("enc2", Some(e2), vec![whole(prev, s.ae_hidden)?], GateSource::None, false);
+    prev = add(
+        "enc0",
+        Some(e0),
+        vec![input_slice(&enc_in)?],
+        GateSource::None,
+        true,
+    );
+    prev = add(
+        "enc1",
+        Some(e1),
+        vec![whole(prev, s.ae_hidden)?],
+        GateSource::None,
+        true,
+    );
+    let zn = add(
+        "enc2",
+        Some(e2),
+        vec![whole(prev, s.ae_hidden)?],
+        GateSource::None,
+        false,
+    );
     let [c0, c1, c2] = costs;
     let cost_inputs = if cost.end == target.start {
         vec![input_slice(&(cost.start..target.end))?]
@@ -519,8 +581,20 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
         vec![input_slice(&cost)?, input_slice(&target)?]
     };
     prev = add("cost0", Some(c0), cost_inputs, GateSource::None, true);
-    prev = add("cost1", Some(c1), vec![whole(prev, s.cost_hidden)?], GateSource::None, true);
-    let cn = add("cost2", Some(c2), vec![whole(prev, s.cost_hidden)?], GateSource::None, false);
+    prev = add(
+        "cost1",
+        Some(c1),
+        vec![whole(prev, s.cost_hidden)?],
+        GateSource::None,
+        true,
+    );
+    let cn = add(
+        "cost2",
+        Some(c2),
+        vec![whole(prev, s.cost_hidden)?],
+        GateSource::None,
+        false,
+    );
     let g = GateSource::Node(u8::try_from(alpha)?);
     let [m0, m1, m2] = moe;
     prev = add(
@@ -533,8 +607,20 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     prev = add("moe1", Some(m1), vec![whole(prev, h)?], g, true);
     let mo = add("moe2", Some(m2), vec![whole(prev, h)?], g, false);
     let [d0, d1, _] = dec;
-    prev = add("dec0", Some(d0), vec![node_slice(mo, &z)?], GateSource::None, true);
-    prev = add("dec1", Some(d1), vec![whole(prev, nh)?], GateSource::None, true);
+    prev = add(
+        "dec0",
+        Some(d0),
+        vec![node_slice(mo, &z)?],
+        GateSource::None,
+        true,
+    );
+    prev = add(
+        "dec1",
+        Some(d1),
+        vec![whole(prev, nh)?],
+        GateSource::None,
+        true,
+    );
     let out = add(
         "out",
         Some(out_layer),
@@ -672,10 +758,14 @@ mod tests {
             .into_iter()
             .map(|(a, b)| (a.to_string(), b))
             .collect(),
-            out_slices: [("dphase", sl(0, np)), ("z", sl(np, np + l)), ("cost", sl(np + l, mo))]
-                .into_iter()
-                .map(|(a, b)| (a.to_string(), b))
-                .collect(),
+            out_slices: [
+                ("dphase", sl(0, np)),
+                ("z", sl(np, np + l)),
+                ("cost", sl(np + l, mo)),
+            ]
+            .into_iter()
+            .map(|(a, b)| (a.to_string(), b))
+            .collect(),
             phase_update: PhaseUpdate { a: 0.9 },
             mode: "grounded".into(),
             encoder_columns: None,
@@ -693,7 +783,9 @@ mod tests {
             .map(|s| if s < MIN_STD { 1.0 } else { s })
             .collect();
         let mean = v("norm.mean");
-        let x: Vec<f64> = (0..raw.len()).map(|i| (raw[i] - mean[i]) / std[i]).collect();
+        let x: Vec<f64> = (0..raw.len())
+            .map(|i| (raw[i] - mean[i]) / std[i])
+            .collect();
         let lin = |w: &NpArray, b: &[f64], x: &[f64]| -> Vec<f64> {
             let (o, i) = (w.shape[0] as usize, w.shape[1] as usize);
             (0..o)
@@ -702,7 +794,11 @@ mod tests {
         };
         let mlp = |name: &str, mut x: Vec<f64>| {
             for i in 0..3 {
-                x = lin(&t[&format!("{name}.{i}.w")], &v(&format!("{name}.{i}.b")), &x);
+                x = lin(
+                    &t[&format!("{name}.{i}.w")],
+                    &v(&format!("{name}.{i}.b")),
+                    &x,
+                );
                 if i < 2 {
                     x = x.into_iter().map(elu).collect();
                 }
@@ -722,15 +818,25 @@ mod tests {
         for l in 0..3 {
             let w = &t[&format!("experts.w{l}")];
             let b = v(&format!("experts.b{l}"));
-            let (k, i, o) = (w.shape[0] as usize, w.shape[1] as usize, w.shape[2] as usize);
+            let (k, i, o) = (
+                w.shape[0] as usize,
+                w.shape[1] as usize,
+                w.shape[2] as usize,
+            );
             let mut out = vec![0.0; o];
             for (e, a) in alpha.iter().enumerate().take(k) {
                 for (oo, acc) in out.iter_mut().enumerate() {
-                    let d: f64 = (0..i).map(|ii| hv[ii] * w.data[(e * i + ii) * o + oo]).sum();
+                    let d: f64 = (0..i)
+                        .map(|ii| hv[ii] * w.data[(e * i + ii) * o + oo])
+                        .sum();
                     *acc += a * (d + b[e * o + oo]);
                 }
             }
-            hv = if l < 2 { out.into_iter().map(elu).collect() } else { out };
+            hv = if l < 2 {
+                out.into_iter().map(elu).collect()
+            } else {
+                out
+            };
         }
         let os = |n: &str| {
             let [a, b] = cfg.out_slices[n];
@@ -786,7 +892,9 @@ mod tests {
             },
         );
         let m = net_from_omg(&cfg, &arrays).unwrap();
-        let x: Vec<f64> = (0..cfg.model_width).map(|i| (i as f64 * 0.11).cos()).collect();
+        let x: Vec<f64> = (0..cfg.model_width)
+            .map(|i| (i as f64 * 0.11).cos())
+            .collect();
         // The same model with the encoder reading a full-width pose block
         // whose other columns have zero weights.
         let mut full = arrays.clone();
@@ -831,13 +939,18 @@ mod tests {
         );
         let mut c = cfg.clone();
         c.sizes.latent = 4;
-        assert!(err(&c, &arrays).starts_with("out_slices dphase 0..2, z 2..5, cost 5..11 must have"));
+        assert!(
+            err(&c, &arrays).starts_with("out_slices dphase 0..2, z 2..5, cost 5..11 must have")
+        );
         let mut c = cfg.clone();
         c.variant = "RBF-CAT".into();
         assert!(err(&c, &arrays).contains("needs an RBF op"));
         let mut c = cfg.clone();
         c.phase_update.a = 1.5;
-        assert_eq!(err(&c, &arrays), "phase_update.a = 1.5: expected 0 < a <= 1");
+        assert_eq!(
+            err(&c, &arrays),
+            "phase_update.a = 1.5: expected 0 < a <= 1"
+        );
         let mut c = cfg.clone();
         c.slices.insert("pose".into(), [2, 20]);
         assert_eq!(
@@ -850,6 +963,7 @@ mod tests {
             mean: Some(vec![0.0; c.model_width]),
             std: None,
         });
-        assert!(err(&c, &arrays).starts_with("normalisation.mean[0] = 0, but the weights' norm.mean[0] = "));
+        assert!(err(&c, &arrays)
+            .starts_with("normalisation.mean[0] = 0, but the weights' norm.mean[0] = "));
     }
 }
