@@ -360,6 +360,62 @@ pub struct FixedAgreement {
     /// The fixed-point grounded rollouts vs the f64 ones (all clips, all
     /// frames).
     pub rollout: Diff,
+    /// The same over each clip's first [`HORIZONS`] frames.
+    pub rollout_by_horizon: Vec<(usize, Diff)>,
+}
+
+/// Rollout lengths the differences are also given for.
+pub const HORIZONS: [usize; 3] = [30, 100, 200];
+
+/// `diff` over each clip's first `h` frames of rollouts laid out clip
+/// after clip, `frames` per clip.
+fn diff_within(omg: &OmgNet, a: &[Vec<f64>], b: &[Vec<f64>], frames: usize, h: usize) -> Diff {
+    let pick = |v: &[Vec<f64>]| -> Vec<Vec<f64>> {
+        v.iter()
+            .enumerate()
+            .filter(|(i, _)| i % frames < h)
+            .map(|(_, r)| r.clone())
+            .collect()
+    };
+    diff(omg, &pick(a), &pick(b))
+}
+
+/// How sensitive the model's own grounded rollout is: the f64 rollout of
+/// the net with every dense weight moved by uniform noise of half an int8
+/// step (per row, the step of the row's largest weight over its experts,
+/// as the quantiser's scale), against the unperturbed f64 rollout. A model
+/// whose rollout diverges under this noise cannot follow its f64 rollout
+/// at int8, whatever the rounding.
+pub fn int8_sized_noise(d: &OmgDir, seed: u64) -> Result<Diff> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut noisy = d.omg.clone();
+    for l in &mut noisy.net.layers {
+        let exporter::net::NetLayer::Dense(e) = l else {
+            continue;
+        };
+        let rows = e.w[0].nrows();
+        for r in 0..rows {
+            let max =
+                e.w.iter()
+                    .flat_map(|w| w.row(r).to_vec())
+                    .fold(0.0, |m: f64, v| m.max(v.abs()));
+            let step = max / 127.0;
+            for w in &mut e.w {
+                for v in w.row_mut(r) {
+                    if *v != 0.0 {
+                        *v += (rng.gen::<f64>() - 0.5) * step;
+                    }
+                }
+            }
+        }
+    }
+    let ro_float = float_rollouts(d)?;
+    let mut ro = Vec::new();
+    for c in 0..d.refs.targets.dims[0] {
+        ro.extend(reference_rollout(d, c, |x| Ok(noisy.step(x)))?);
+    }
+    Ok(diff(&d.omg, &ro, &ro_float))
 }
 
 /// Measures a blob of `d`'s model against its f64 forward.
@@ -389,6 +445,13 @@ pub fn fixed_agreement(d: &OmgDir, blob: &[u8], weights: &'static str) -> Result
         one_step: diff(&d.omg, &yf, &yr),
         one_step_pos_max_m,
         rollout: diff(&d.omg, &ro_fixed, &ro_float),
+        rollout_by_horizon: HORIZONS
+            .iter()
+            .map(|&h| {
+                let frames = d.refs.targets.dims[1];
+                (h, diff_within(&d.omg, &ro_fixed, &ro_float, frames, h))
+            })
+            .collect(),
     })
 }
 
@@ -410,6 +473,8 @@ pub struct OmgAccuracy {
     pub float: FloatAgreement,
     /// int16 and int8 blobs vs the f64 forward.
     pub fixed: Vec<FixedAgreement>,
+    /// [`int8_sized_noise`] with seeds 0 and 1.
+    pub int8_sized_noise: Vec<Diff>,
 }
 
 /// Measures everything for `dir`, the blobs quantised with `opts` (its
@@ -426,6 +491,7 @@ pub fn measure(dir: &Path, opts: &QuantOptions) -> Result<OmgAccuracy> {
         dir: dir.display().to_string(),
         float,
         fixed,
+        int8_sized_noise: vec![int8_sized_noise(&d, 0)?, int8_sized_noise(&d, 1)?],
     })
 }
 
@@ -460,6 +526,21 @@ impl OmgAccuracy {
                 100.0 * x.rollout.p99_joint_m,
                 100.0 * x.rollout.max_joint_m,
                 100.0 * x.rollout.mean_joint_m,
+            );
+        }
+        for x in &self.fixed {
+            s += &format!("{:<6} rollout joint p99 cm over the first", x.weights);
+            for (h, d) in &x.rollout_by_horizon {
+                s += &format!(" {h} frames {:.3},", 100.0 * d.p99_joint_m);
+            }
+            s += &format!(" 300 frames {:.3}\n", 100.0 * x.rollout.p99_joint_m);
+        }
+        for (seed, n) in self.int8_sized_noise.iter().enumerate() {
+            s += &format!(
+                "f64 with int8-sized weight noise (seed {seed}) vs f64: rollout joint p99 {:.3} cm, \
+                 max {:.3} cm\n",
+                100.0 * n.p99_joint_m,
+                100.0 * n.max_joint_m
             );
         }
         s
