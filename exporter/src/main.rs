@@ -67,7 +67,16 @@ struct OutputArgs {
     /// only; the report's int16_budget says where it went).
     #[arg(long, value_name = "BYTES")]
     int16_budget: Option<usize>,
+    /// Factor between the largest calibrated value of a row and its
+    /// format's range (default 1.5; `exporter omg`: 3, because its
+    /// calibration inputs, independent normal features, reach smaller
+    /// activations than real motion frames, docs/omg.md).
+    #[arg(long)]
+    headroom: Option<f64>,
 }
+
+/// The quantiser's default headroom.
+const DEFAULT_HEADROOM: f64 = 1.5;
 
 fn parse_bits(s: &str) -> Result<u8, String> {
     match s {
@@ -105,6 +114,18 @@ enum Command {
         /// The weights (.npz or .safetensors).
         #[arg(long)]
         weights: PathBuf,
+        #[command(flatten)]
+        out: OutputArgs,
+    },
+    /// Import a trained OMG model (FE or FS; tools/omg/train's
+    /// model.safetensors + config.json) as a graph (docs/omg.md).
+    Omg {
+        /// The weights and normalisation (model.safetensors).
+        #[arg(long)]
+        weights: PathBuf,
+        /// The model's config.json (sizes, slices, out_slices, phase update).
+        #[arg(long)]
+        config: PathBuf,
         #[command(flatten)]
         out: OutputArgs,
     },
@@ -179,6 +200,7 @@ fn export(
     net: &Net,
     residual: Option<exporter::control_points::Residual>,
     q: &OutputArgs,
+    default_headroom: f64,
 ) -> Result<()> {
     let weights = if q.weight_bits == 16 {
         WeightFormat::I16
@@ -196,8 +218,13 @@ fn export(
         .as_deref()
         .map(|p| exporter::quantise::Recorded::read(p, net.input_dim()))
         .transpose()?;
+    let headroom = q.headroom.unwrap_or(default_headroom);
+    if !(headroom.is_finite() && headroom >= 1.0) {
+        bail!("--headroom {headroom} must be at least 1");
+    }
     let opts = QuantOptions {
         weights,
+        headroom,
         input_range_sigma: q.input_range_sigma,
         compensation_samples: q.compensation_samples,
         calibration_data,
@@ -312,11 +339,11 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Pfnn { weights, quant } => {
             let (net, residual) = load_pfnn_dir(&weights, quant.gating.into())?;
-            export(&net, residual, &quant.out)
+            export(&net, residual, &quant.out, DEFAULT_HEADROOM)
         }
         Command::Npz { weights, quant } => {
             let net = exporter::npz::pfnn_from_npz(&weights, quant.gating.into())?;
-            export(&net, None, &quant.out)
+            export(&net, None, &quant.out, DEFAULT_HEADROOM)
         }
         Command::Graph {
             graph,
@@ -324,7 +351,15 @@ fn run(cli: Cli) -> Result<()> {
             out,
         } => {
             let net = exporter::net::json::read_graph(&graph, &weights)?;
-            export(&net, None, &out)
+            export(&net, None, &out, DEFAULT_HEADROOM)
+        }
+        Command::Omg {
+            weights,
+            config,
+            out,
+        } => {
+            let omg = exporter::net::omg::read_omg(&weights, &config)?;
+            export(&omg.net, None, &out, exporter::net::omg::HEADROOM)
         }
         Command::Cp(a) => exporter::cp::cli::cp(&a),
         Command::CpImport(a) => exporter::cp::cli::cp_import(&a),

@@ -704,3 +704,60 @@ fn calibration_rollouts_reach_the_quantiser_and_the_report() {
     assert!(!o.status.success() && !blob.exists());
     assert!(stderr(&o).contains("--int16-budget"), "{}", stderr(&o));
 }
+
+#[test]
+fn omg_exports_the_committed_model_and_refuses_a_bad_config_without_writing() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg/tiny_fe_r4_frozen");
+    let dir = tempfile::tempdir().unwrap();
+    let blob = dir.path().join("m.blob");
+    let report = dir.path().join("m.json");
+    let (w, c) = (root.join("model.safetensors"), root.join("config.json"));
+    let (w, c) = (w.to_str().unwrap(), c.to_str().unwrap());
+    let o = exporter(&[
+        "omg",
+        "--weights",
+        w,
+        "--config",
+        c,
+        "-o",
+        blob.to_str().unwrap(),
+        "--weight-bits",
+        "16",
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let bytes = std::fs::read(&blob).unwrap();
+    let m = phasegate::Model::from_bytes(&bytes).unwrap();
+    assert_eq!((m.input_dim(), m.output_dim()), (356, 320));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert_eq!(r["weight_format"], "int16");
+    assert_eq!(r["overflow_proof"], true);
+    // RBF-CAT is refused in one line naming the config; nothing written.
+    let mut cfg: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(c).unwrap()).unwrap();
+    cfg["variant"] = "RBF-CAT".into();
+    let bad = dir.path().join("config.json");
+    std::fs::write(&bad, cfg.to_string()).unwrap();
+    let out = dir.path().join("x.blob");
+    let o = exporter(&[
+        "omg",
+        "--weights",
+        w,
+        "--config",
+        bad.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.starts_with(&format!(
+            "error: {}: variant RBF-CAT needs an RBF op",
+            bad.display()
+        )),
+        "{e}"
+    );
+    assert_eq!(e.lines().count(), 1, "{e}");
+    assert!(!out.exists());
+}

@@ -9,6 +9,7 @@ pub mod demo;
 pub mod eval;
 pub mod golden;
 pub mod npy;
+pub mod omg;
 pub mod quant_knobs;
 pub mod render;
 pub mod rollout;

@@ -88,6 +88,25 @@ enum Command {
         #[command(flatten)]
         int8: host_sim::quant_knobs::Int8Knobs,
     },
+    /// OMG models (docs/omg.md): the f64 graph forward vs the committed
+    /// PyTorch references, and int16 / int8 blobs vs the f64 forward, one
+    /// step and over the 300-frame grounded rollout.
+    OmgAccuracy {
+        /// Model directories (model.safetensors, config.json, ref_*.npy).
+        #[arg(required = true)]
+        dirs: Vec<PathBuf>,
+        /// Also write every figure as JSON.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Spread of the calibration inputs, in standard deviations (the
+        /// quantiser's calibration_scale).
+        #[arg(long, default_value_t = 1.0)]
+        calibration_scale: f64,
+        /// Factor between calibrated maxima and the i16 range (as `exporter
+        /// omg --headroom`).
+        #[arg(long, default_value_t = exporter::net::omg::HEADROOM)]
+        headroom: f64,
+    },
     /// Run a blob on the Cortex-M4 firmware under QEMU, bit for bit against the host runtime.
     Target {
         /// The model blob, flashed at the MODEL region on its own.
@@ -258,6 +277,28 @@ fn run(cli: Cli) -> Result<()> {
             );
             if let Some(path) = json {
                 exporter::atomic::write_atomic(&path, &serde_json::to_vec_pretty(&a)?)?;
+            }
+            Ok(())
+        }
+        Command::OmgAccuracy {
+            dirs,
+            json,
+            calibration_scale,
+            headroom,
+        } => {
+            let opts = exporter::quantise::QuantOptions {
+                calibration_scale,
+                headroom,
+                ..Default::default()
+            };
+            let mut all = Vec::new();
+            for d in &dirs {
+                let a = host_sim::omg::measure(d, &opts)?;
+                print!("{}", a.table());
+                all.push(a);
+            }
+            if let Some(path) = json {
+                exporter::atomic::write_atomic(&path, &serde_json::to_vec_pretty(&all)?)?;
             }
             Ok(())
         }

@@ -85,6 +85,12 @@ pub fn read_matrix_i16(path: &Path) -> Result<Matrix<i16>> {
     read_matrix(path, None, "int16")
 }
 
+/// Reads a float32 array of any shape: (shape, values in C order).
+pub fn read_array_f32(path: &Path) -> Result<(Vec<usize>, Vec<f32>)> {
+    let (shape, data) = read_any::<f32>(path)?;
+    Ok((shape.iter().map(|&d| d as usize).collect(), data))
+}
+
 /// Reads an `(N,)` float32 vector.
 pub fn read_vector_f32(path: &Path) -> Result<Vec<f32>> {
     let (shape, data) = read_any::<f32>(path)?;

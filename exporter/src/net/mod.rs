@@ -18,6 +18,7 @@
 pub mod gating;
 pub mod graph;
 pub mod json;
+pub mod omg;
 pub mod pfnn;
 pub mod residual;
 

@@ -1,0 +1,969 @@
+//! The OMG importer: a trained FE-OMG (or FS-OMG) model as `tools/omg/train`
+//! writes it (`model.safetensors` + `config.json`, `models/omg/README.md`)
+//! becomes a graph [`Net`] of the ops every graph has (dense, optionally
+//! K-expert blended by a softmax gate node, softmax), so it goes through
+//! the one quantiser, encoder and report (`exporter omg`, `docs/omg.md`).
+//!
+//! The graph, 16 nodes (`g` = gate, `e` = encoder, `c` = cost encoder,
+//! `m` = gated experts, `d` = decoder; ELU after every node but `gate2`,
+//! `enc2`, `cost2`, `moe2` and `out`):
+//!
+//! ```text
+//! gate0..2  input[phase]                 -> K logits    gate.{0,1,2}.w/.b
+//! alpha     softmax(gate2)                               (the expert gate)
+//! enc0..2   input[pose]                  -> L           enc.{0,1,2}.w/.b
+//! cost0..2  input[cost], input[target]   -> Hc          cost.{0,1,2}.w/.b
+//! moe0..2   [enc2, cost2], gate alpha    -> 2K+L+6K     experts.w{l} (k,in,out) transposed, experts.b{l}
+//! dec0..1   moe2[z]                      -> h           dec.{0,1}.w/.b
+//! out       [moe2[dphase], input[phase], dec1, moe2[cost]]
+//!           rows 0..2K:   a * dphase + (1 - a) * phase  (the phase update, a = 0.9)
+//!           rows 2K..:    dec.2.w @ dec1 + dec.2.b       (the decoded pose)
+//!           last 6K rows: the predicted costs C', copied (weight 1)
+//! ```
+//!
+//! The network's output is the model output `Y` without its target block,
+//! in the order phase, pose, costs ([`OmgNet::frame`] puts it back into
+//! `Y`'s layout and copies the targets from the input, as the model does).
+//! One node has to produce all three because a blob's output is one slice of
+//! one node; folding the phase update and the cost copy into the decoder's
+//! last layer costs `(2K + 6K) * (12J + 8K) + 2K * 12J` MACs more than the
+//! decoder alone (18,208 for R1) and no runtime code.
+//!
+//! FS (`encoder_columns` in the config): the encoder's first layer reads a
+//! few joints' columns; the importer scatters its weights into the columns
+//! `min..=max` of those (zeros elsewhere), one input slice. RBF-CAT needs
+//! an RBF op (`psi = exp(-(sigma |z - mu|)^2)`) the graph does not have and
+//! is refused.
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+use std::path::Path;
+
+use anyhow::{anyhow, bail, Context, Result};
+use ndarray::{Array1, Array2};
+use serde::Deserialize;
+
+use super::graph::{Graph, GraphNode, GraphOp};
+use super::{ExpertLayer, GatingMode, Net, NetLayer, Wiring};
+use crate::npz::NpArray;
+use phasegate::blob::{GateSource, Slice, Source};
+
+/// The `format` field of an OMG `config.json`.
+pub const FORMAT: &str = "phasegate-omg-1";
+/// The quantiser headroom `exporter omg` uses: the calibration inputs
+/// (independent normal features around the mean) reach up to 1.8 times
+/// smaller activations than the real motion frames of tiny_fe_r1 in some
+/// rows (encoder, decoder), which saturate at the default 1.5.
+pub const HEADROOM: f64 = 3.0;
+/// Training standard deviations below this became 1 (the config's rule).
+pub const MIN_STD: f64 = 1e-4;
+
+/// Sizes of an OMG model (`config.json` `sizes`).
+#[derive(Clone, Debug, Deserialize)]
+pub struct OmgSizes {
+    /// Autoencoder hidden width.
+    pub ae_hidden: usize,
+    /// Pose embedding width L.
+    pub latent: usize,
+    /// Cost-encoder width.
+    pub cost_hidden: usize,
+    /// Expert hidden width.
+    pub expert_hidden: usize,
+    /// Gate hidden width.
+    pub gate_hidden: usize,
+    /// Experts k.
+    pub experts: usize,
+}
+
+/// The phase update `theta' = a * dtheta + (1 - a) * theta`.
+#[derive(Clone, Debug, Deserialize)]
+pub struct PhaseUpdate {
+    /// `a` (0.9).
+    pub a: f64,
+}
+
+/// The normalisation block of the config (the statistics are also in the
+/// weights file, `norm.mean` / `norm.std`, which the importer uses).
+#[derive(Clone, Debug, Deserialize)]
+pub struct OmgNormalisation {
+    /// The rule in words.
+    #[serde(default)]
+    pub rule: String,
+    /// Per-feature means, if written.
+    #[serde(default)]
+    pub mean: Option<Vec<f64>>,
+    /// Per-feature standard deviations, if written.
+    #[serde(default)]
+    pub std: Option<Vec<f64>>,
+}
+
+/// What the importer and the rollouts read from `config.json` (other fields
+/// are ignored).
+#[derive(Clone, Debug, Deserialize)]
+pub struct OmgConfig {
+    /// Must be [`FORMAT`].
+    pub format: String,
+    /// `"FE"`, `"FS"` or `"RBF-CAT"`.
+    pub variant: String,
+    /// Joints of the rig.
+    #[serde(rename = "J")]
+    pub joints: usize,
+    /// Key joints (hands, feet).
+    #[serde(rename = "K")]
+    pub key: usize,
+    /// Indices of the key joints among the rig's joints.
+    pub key_joint_indices: Vec<usize>,
+    /// Width n of X and Y.
+    pub model_width: usize,
+    /// Sizes.
+    pub sizes: OmgSizes,
+    /// Blocks of X and Y: `phase`, `pose`, `cost`, `target`, and within
+    /// them `pos`, `rot`, `vel`, `pos_cost`, `rot_cost`, `target_pos`,
+    /// `target_rot`.
+    pub slices: BTreeMap<String, [usize; 2]>,
+    /// Blocks of the last expert layer's output: `dphase`, `z`, `cost`.
+    pub out_slices: BTreeMap<String, [usize; 2]>,
+    /// The phase update.
+    pub phase_update: PhaseUpdate,
+    /// `"grounded"` or `"faithful"`: the inference mode trained for.
+    pub mode: String,
+    /// FS: the columns of X the encoder reads.
+    #[serde(default)]
+    pub encoder_columns: Option<Vec<usize>>,
+    /// Normalisation.
+    #[serde(default)]
+    pub normalisation: Option<OmgNormalisation>,
+}
+
+impl OmgConfig {
+    /// Block `name` of X / Y.
+    ///
+    /// # Panics
+    /// If the block is missing ([`net_from_omg`] checks the blocks it needs).
+    pub fn slice(&self, name: &str) -> Range<usize> {
+        let [a, b] = self.slices[name];
+        a..b
+    }
+
+    fn block(&self, name: &str) -> Result<Range<usize>> {
+        let &[a, b] = self
+            .slices
+            .get(name)
+            .ok_or_else(|| anyhow!("slices has no {name:?} block"))?;
+        if a > b || b > self.model_width {
+            bail!(
+                "slices.{name} = [{a}, {b}] is not within the model width {}",
+                self.model_width
+            );
+        }
+        Ok(a..b)
+    }
+
+    fn out_block(&self, name: &str) -> Result<Range<usize>> {
+        let &[a, b] = self
+            .out_slices
+            .get(name)
+            .ok_or_else(|| anyhow!("out_slices has no {name:?} block"))?;
+        if a >= b {
+            bail!("out_slices.{name} = [{a}, {b}] is empty");
+        }
+        Ok(a..b)
+    }
+}
+
+/// An imported OMG model: the graph net and where `Y`'s blocks are.
+#[derive(Clone, Debug)]
+pub struct OmgNet {
+    /// The config it was built from.
+    pub config: OmgConfig,
+    /// The graph (input X, output `[phase', pose', cost']`).
+    pub net: Net,
+    /// Where the net's output blocks go in `Y`: (range in the net's
+    /// output, range in `Y`) for phase, pose and cost.
+    pub blocks: [(Range<usize>, Range<usize>); 3],
+    /// `Y`'s target block (copied from X).
+    pub target: Range<usize>,
+}
+
+impl OmgNet {
+    /// The model's `Y` (width n) from the net's output and the frame's `X`:
+    /// the three computed blocks in their places and the targets copied
+    /// from `X`.
+    pub fn frame(&self, net_out: &[f64], x: &[f64]) -> Vec<f64> {
+        let mut y = vec![0.0; self.config.model_width];
+        for (from, to) in &self.blocks {
+            y[to.clone()].copy_from_slice(&net_out[from.clone()]);
+        }
+        y[self.target.clone()].copy_from_slice(&x[self.target.clone()]);
+        y
+    }
+
+    /// One frame of the model in f64, raw units: `Y = step(X)`.
+    pub fn step(&self, x: &[f64]) -> Vec<f64> {
+        self.frame(&self.net.forward(x, 0.0), x)
+    }
+}
+
+fn get<'a>(arrays: &'a BTreeMap<String, NpArray>, name: &str) -> Result<&'a NpArray> {
+    arrays
+        .get(name)
+        .ok_or_else(|| anyhow!("tensor {name:?} is missing"))
+}
+
+fn check_shape(a: &NpArray, name: &str, want: &[usize], why: &str) -> Result<()> {
+    let got: Vec<usize> = a.shape.iter().map(|&d| d as usize).collect();
+    if got != want {
+        bail!("tensor {name:?} has shape {got:?}, expected {want:?} ({why})");
+    }
+    Ok(())
+}
+
+/// `name.{i}.w` (out, in) and `name.{i}.b` (out) of an MLP, checked against
+/// the input width `inp` and the output width `out`.
+fn linear(
+    arrays: &BTreeMap<String, NpArray>,
+    name: &str,
+    inp: usize,
+    out: usize,
+    why: &str,
+) -> Result<ExpertLayer> {
+    let (wn, bn) = (format!("{name}.w"), format!("{name}.b"));
+    let w = get(arrays, &wn)?;
+    check_shape(w, &wn, &[out, inp], why)?;
+    let b = get(arrays, &bn)?;
+    check_shape(b, &bn, &[out], why)?;
+    Ok(ExpertLayer {
+        w: vec![Array2::from_shape_vec((out, inp), w.data.clone())?],
+        b: vec![Array1::from(b.data.clone())],
+    })
+}
+
+/// A three-layer MLP `name.{0,1,2}`: `inp -> hidden -> hidden -> out`.
+fn mlp(
+    arrays: &BTreeMap<String, NpArray>,
+    name: &str,
+    inp: usize,
+    hidden: usize,
+    out: usize,
+    what: &str,
+) -> Result<[ExpertLayer; 3]> {
+    Ok([
+        linear(
+            arrays,
+            &format!("{name}.0"),
+            inp,
+            hidden,
+            &format!("{what} {inp} -> {hidden}"),
+        )?,
+        linear(
+            arrays,
+            &format!("{name}.1"),
+            hidden,
+            hidden,
+            &format!("{what} {hidden} -> {hidden}"),
+        )?,
+        linear(
+            arrays,
+            &format!("{name}.2"),
+            hidden,
+            out,
+            &format!("{what} {hidden} -> {out}"),
+        )?,
+    ])
+}
+
+/// Expert layer `l`: `experts.w{l}` (k, in, out), `experts.b{l}` (k, out).
+fn experts(
+    arrays: &BTreeMap<String, NpArray>,
+    l: usize,
+    k: usize,
+    inp: usize,
+    out: usize,
+) -> Result<ExpertLayer> {
+    let (wn, bn) = (format!("experts.w{l}"), format!("experts.b{l}"));
+    let why = format!("expert layer {l}: {k} experts, {inp} -> {out}");
+    let w = get(arrays, &wn)?;
+    check_shape(w, &wn, &[k, inp, out], &why)?;
+    let b = get(arrays, &bn)?;
+    check_shape(b, &bn, &[k, out], &why)?;
+    Ok(ExpertLayer {
+        w: (0..k)
+            .map(|e| Array2::from_shape_fn((out, inp), |(o, i)| w.data[(e * inp + i) * out + o]))
+            .collect(),
+        b: (0..k)
+            .map(|e| Array1::from(b.data[e * out..(e + 1) * out].to_vec()))
+            .collect(),
+    })
+}
+
+fn input_slice(r: &Range<usize>) -> Result<Slice> {
+    Ok(Slice {
+        source: Source::Input,
+        start: u16::try_from(r.start)?,
+        len: u16::try_from(r.len())?,
+    })
+}
+
+fn node_slice(node: usize, r: &Range<usize>) -> Result<Slice> {
+    Ok(Slice {
+        source: Source::Node(u8::try_from(node)?),
+        start: u16::try_from(r.start)?,
+        len: u16::try_from(r.len())?,
+    })
+}
+
+/// The normalisation statistics: `norm.mean` / `norm.std` of the weights
+/// file (n each), std below [`MIN_STD`] taken as 1 (the training rule), and
+/// the config's copies, when it has them, equal to them.
+fn normalisation(
+    cfg: &OmgConfig,
+    arrays: &BTreeMap<String, NpArray>,
+) -> Result<(Array1<f64>, Array1<f64>)> {
+    let n = cfg.model_width;
+    let why = format!("model width {n}");
+    let m = get(arrays, "norm.mean")?;
+    check_shape(m, "norm.mean", &[n], &why)?;
+    let s = get(arrays, "norm.std")?;
+    check_shape(s, "norm.std", &[n], &why)?;
+    if let Some(i) = s.data.iter().position(|v| *v < 0.0) {
+        bail!("tensor \"norm.std\" is negative at index {i}");
+    }
+    let std: Array1<f64> = s
+        .data
+        .iter()
+        .map(|&v| if v < MIN_STD { 1.0 } else { v })
+        .collect();
+    let mean = Array1::from(m.data.clone());
+    if let Some(nm) = &cfg.normalisation {
+        for (what, cfgv, ours) in [("mean", &nm.mean, &mean), ("std", &nm.std, &std)] {
+            let Some(v) = cfgv else { continue };
+            if v.len() != n {
+                bail!(
+                    "config normalisation.{what} has {} values, not {n}",
+                    v.len()
+                );
+            }
+            if let Some(i) = (0..n).find(|&i| (v[i] - ours[i]).abs() > 1e-6 * (1.0 + v[i].abs())) {
+                bail!(
+                    "normalisation.{what}[{i}] = {}, but the weights' norm.{what}[{i}] = {}",
+                    v[i],
+                    ours[i]
+                );
+            }
+        }
+    }
+    Ok((mean, std))
+}
+
+/// Builds the graph net of an OMG model from its config and tensors. Errors
+/// name the tensor or config field; [`read_omg`] adds the file.
+pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Result<OmgNet> {
+    if cfg.format != FORMAT {
+        bail!("config format {:?}, expected {FORMAT:?}", cfg.format);
+    }
+    match cfg.variant.as_str() {
+        "FE" | "FS" => {}
+        "RBF-CAT" => bail!(
+            "variant RBF-CAT needs an RBF op (psi = exp(-(sigma |z - mu|)^2)) that the graph \
+             does not have; FE and FS import"
+        ),
+        v => bail!("variant {v:?} (expected FE or FS)"),
+    }
+    let (j, k) = (cfg.joints, cfg.key);
+    let s = &cfg.sizes;
+    let phase = cfg.block("phase")?;
+    let pose = cfg.block("pose")?;
+    let cost = cfg.block("cost")?;
+    let target = cfg.block("target")?;
+    for (name, r, want) in [
+        ("phase", &phase, 2 * k),
+        ("pose", &pose, 12 * j),
+        ("cost", &cost, 6 * k),
+    ] {
+        if r.len() != want {
+            bail!(
+                "slices.{name} has {} columns, but J = {j}, K = {k} make it {want}",
+                r.len()
+            );
+        }
+    }
+    for sub in [
+        "pos",
+        "rot",
+        "vel",
+        "pos_cost",
+        "rot_cost",
+        "target_pos",
+        "target_rot",
+    ] {
+        cfg.block(sub)?;
+    }
+    if cfg.key_joint_indices.len() != k || cfg.key_joint_indices.iter().any(|&i| i >= j) {
+        bail!(
+            "key_joint_indices {:?}: expected {k} joint indices below J = {j}",
+            cfg.key_joint_indices
+        );
+    }
+    let a = cfg.phase_update.a;
+    if !(a.is_finite() && a > 0.0 && a <= 1.0) {
+        bail!("phase_update.a = {a}: expected 0 < a <= 1");
+    }
+    let dphase = cfg.out_block("dphase")?;
+    let z = cfg.out_block("z")?;
+    let ocost = cfg.out_block("cost")?;
+    if dphase.len() != phase.len() || z.len() != s.latent || ocost.len() != cost.len() {
+        bail!(
+            "out_slices dphase {dphase:?}, z {z:?}, cost {ocost:?} must have {}, {} (latent) \
+             and {} columns",
+            phase.len(),
+            s.latent,
+            cost.len()
+        );
+    }
+    let moe_out = dphase.end.max(z.end).max(ocost.end);
+    let (mean, std) = normalisation(cfg, arrays)?;
+
+    // The encoder's input: the pose block, or (FS) the span of its columns.
+    let (enc_in, enc_w0) = match &cfg.encoder_columns {
+        None => (pose.clone(), None),
+        Some(cols) => {
+            let (&lo, &hi) = (
+                cols.iter()
+                    .min()
+                    .ok_or_else(|| anyhow!("encoder_columns is empty"))?,
+                cols.iter().max().unwrap_or(&0),
+            );
+            if hi >= cfg.model_width {
+                bail!("encoder_columns: column {hi} is outside the model width");
+            }
+            (lo..hi + 1, Some(cols.clone()))
+        }
+    };
+    let enc_cols = enc_w0.as_ref().map_or(enc_in.len(), Vec::len);
+    let gate = mlp(
+        arrays,
+        "gate",
+        phase.len(),
+        s.gate_hidden,
+        s.experts,
+        "gate",
+    )?;
+    let mut enc = mlp(arrays, "enc", enc_cols, s.ae_hidden, s.latent, "encoder")?;
+    if let Some(cols) = &enc_w0 {
+        let w = &enc[0].w[0];
+        let mut full = Array2::zeros((w.nrows(), enc_in.len()));
+        for (c, &col) in cols.iter().enumerate() {
+            full.column_mut(col - enc_in.start).assign(&w.column(c));
+        }
+        enc[0].w[0] = full;
+    }
+    let costs = mlp(
+        arrays,
+        "cost",
+        cost.len() + target.len(),
+        s.cost_hidden,
+        s.cost_hidden,
+        "cost encoder",
+    )?;
+    let h = s.expert_hidden;
+    let moe = [
+        experts(arrays, 0, s.experts, s.latent + s.cost_hidden, h)?,
+        experts(arrays, 1, s.experts, h, h)?,
+        experts(arrays, 2, s.experts, h, moe_out)?,
+    ];
+    let dec = mlp(arrays, "dec", s.latent, s.ae_hidden, pose.len(), "decoder")?;
+
+    // The output node: [dphase, phase, dec1, cost'] -> [phase', pose', cost'].
+    let (np, nh, nc) = (phase.len(), s.ae_hidden, cost.len());
+    let rows = np + pose.len() + nc;
+    let cols = 2 * np + nh + nc;
+    let mut w = Array2::zeros((rows, cols));
+    let mut b = Array1::zeros(rows);
+    for i in 0..np {
+        w[[i, i]] = a;
+        w[[i, np + i]] = 1.0 - a;
+    }
+    let [_, _, dec2] = &dec;
+    w.slice_mut(ndarray::s![np..np + pose.len(), 2 * np..2 * np + nh])
+        .assign(&dec2.w[0]);
+    b.slice_mut(ndarray::s![np..np + pose.len()])
+        .assign(&dec2.b[0]);
+    for i in 0..nc {
+        w[[np + pose.len() + i, 2 * np + nh + i]] = 1.0;
+    }
+    let out_layer = ExpertLayer {
+        w: vec![w],
+        b: vec![b],
+    };
+
+    let mut layers: Vec<NetLayer> = Vec::new();
+    let mut nodes: Vec<GraphNode> = Vec::new();
+    let mut add = |name: &str,
+                   layer: Option<ExpertLayer>,
+                   inputs: Vec<Slice>,
+                   gate: GateSource,
+                   elu: bool|
+     -> usize {
+        let op = match layer {
+            Some(l) => {
+                layers.push(NetLayer::Dense(l));
+                GraphOp::Layer {
+                    layer: layers.len() - 1,
+                    elu,
+                }
+            }
+            None => GraphOp::Softmax,
+        };
+        nodes.push(GraphNode {
+            name: name.to_string(),
+            op,
+            inputs,
+            gate,
+        });
+        nodes.len() - 1
+    };
+    let whole = |n: usize, width: usize| node_slice(n, &(0..width));
+    let [g0, g1, g2] = gate;
+    let mut prev = add(
+        "gate0",
+        Some(g0),
+        vec![input_slice(&phase)?],
+        GateSource::None,
+        true,
+    );
+    prev = add(
+        "gate1",
+        Some(g1),
+        vec![whole(prev, s.gate_hidden)?],
+        GateSource::None,
+        true,
+    );
+    let logits = add(
+        "gate2",
+        Some(g2),
+        vec![whole(prev, s.gate_hidden)?],
+        GateSource::None,
+        false,
+    );
+    let alpha = add(
+        "alpha",
+        None,
+        vec![whole(logits, s.experts)?],
+        GateSource::None,
+        false,
+    );
+    let [e0, e1, e2] = enc;
+    prev = add(
+        "enc0",
+        Some(e0),
+        vec![input_slice(&enc_in)?],
+        GateSource::None,
+        true,
+    );
+    prev = add(
+        "enc1",
+        Some(e1),
+        vec![whole(prev, s.ae_hidden)?],
+        GateSource::None,
+        true,
+    );
+    let zn = add(
+        "enc2",
+        Some(e2),
+        vec![whole(prev, s.ae_hidden)?],
+        GateSource::None,
+        false,
+    );
+    let [c0, c1, c2] = costs;
+    let cost_inputs = if cost.end == target.start {
+        vec![input_slice(&(cost.start..target.end))?]
+    } else {
+        vec![input_slice(&cost)?, input_slice(&target)?]
+    };
+    prev = add("cost0", Some(c0), cost_inputs, GateSource::None, true);
+    prev = add(
+        "cost1",
+        Some(c1),
+        vec![whole(prev, s.cost_hidden)?],
+        GateSource::None,
+        true,
+    );
+    let cn = add(
+        "cost2",
+        Some(c2),
+        vec![whole(prev, s.cost_hidden)?],
+        GateSource::None,
+        false,
+    );
+    let g = GateSource::Node(u8::try_from(alpha)?);
+    let [m0, m1, m2] = moe;
+    prev = add(
+        "moe0",
+        Some(m0),
+        vec![whole(zn, s.latent)?, whole(cn, s.cost_hidden)?],
+        g,
+        true,
+    );
+    prev = add("moe1", Some(m1), vec![whole(prev, h)?], g, true);
+    let mo = add("moe2", Some(m2), vec![whole(prev, h)?], g, false);
+    let [d0, d1, _] = dec;
+    prev = add(
+        "dec0",
+        Some(d0),
+        vec![node_slice(mo, &z)?],
+        GateSource::None,
+        true,
+    );
+    prev = add(
+        "dec1",
+        Some(d1),
+        vec![whole(prev, nh)?],
+        GateSource::None,
+        true,
+    );
+    let out = add(
+        "out",
+        Some(out_layer),
+        vec![
+            node_slice(mo, &dphase)?,
+            input_slice(&phase)?,
+            whole(prev, nh)?,
+            node_slice(mo, &ocost)?,
+        ],
+        GateSource::None,
+        false,
+    );
+    let output = whole(out, rows)?;
+
+    let blocks = [
+        (0..np, phase.clone()),
+        (np..np + pose.len(), pose.clone()),
+        (np + pose.len()..rows, cost.clone()),
+    ];
+    let pick = |v: &Array1<f64>| -> Array1<f64> {
+        blocks
+            .iter()
+            .flat_map(|(_, r)| v.slice(ndarray::s![r.clone()]).to_vec())
+            .collect()
+    };
+    let net = Net {
+        mode: GatingMode::Constant,
+        ymean: pick(&mean),
+        ystd: pick(&std),
+        xmean: mean,
+        xstd: std,
+        layers,
+        wiring: Wiring::Graph(Graph { nodes, output }),
+    };
+    Ok(OmgNet {
+        config: cfg.clone(),
+        net,
+        blocks,
+        target,
+    })
+}
+
+/// Reads an OMG model: `config` (`config.json`) and `weights`
+/// (`model.safetensors`). Every error is one line naming the file.
+pub fn read_omg(weights: &Path, config: &Path) -> Result<OmgNet> {
+    let text = std::fs::read_to_string(config)
+        .with_context(|| format!("cannot read {}", config.display()))?;
+    let cfg: OmgConfig = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not an OMG config", config.display()))?;
+    let arrays = crate::cp::import::read_arrays(weights)?;
+    net_from_omg(&cfg, &arrays).map_err(|e| {
+        let file = if e.to_string().starts_with("tensor") {
+            weights
+        } else {
+            config
+        };
+        anyhow!("{}: {e:#}", file.display())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::net::elu;
+    use rand::{Rng, SeedableRng};
+
+    /// A tiny FE model: J = 2, K = 1 (n = 24 + 2 + 6 + 9 = ... see below).
+    pub(crate) fn tiny(seed: u64) -> (OmgConfig, BTreeMap<String, NpArray>) {
+        let (j, k) = (2usize, 1usize);
+        let (np, npose, nc, nt) = (2 * k, 12 * j, 6 * k, 9 * k);
+        let n = np + npose + nc + nt;
+        let (hae, l, hc, he, hg, ke) = (5, 3, 4, 6, 3, 2);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let mut arrays = BTreeMap::new();
+        let mut put = |name: &str, shape: &[usize], rng: &mut rand_chacha::ChaCha8Rng| {
+            let len = shape.iter().product();
+            arrays.insert(
+                name.to_string(),
+                NpArray {
+                    shape: shape.iter().map(|&d| d as u64).collect(),
+                    data: (0..len).map(|_| rng.gen_range(-0.6..0.6)).collect(),
+                },
+            );
+        };
+        for (name, dims) in [
+            ("gate", [np, hg, hg, ke]),
+            ("enc", [npose, hae, hae, l]),
+            ("cost", [nc + nt, hc, hc, hc]),
+            ("dec", [l, hae, hae, npose]),
+        ] {
+            for i in 0..3 {
+                put(&format!("{name}.{i}.w"), &[dims[i + 1], dims[i]], &mut rng);
+                put(&format!("{name}.{i}.b"), &[dims[i + 1]], &mut rng);
+            }
+        }
+        let mo = np + l + nc;
+        for (i, (a, b)) in [(l + hc, he), (he, he), (he, mo)].into_iter().enumerate() {
+            put(&format!("experts.w{i}"), &[ke, a, b], &mut rng);
+            put(&format!("experts.b{i}"), &[ke, b], &mut rng);
+        }
+        put("norm.mean", &[n], &mut rng);
+        put("norm.std", &[n], &mut rng);
+        let s = arrays.get_mut("norm.std").unwrap();
+        s.data.iter_mut().for_each(|v| *v = v.abs() + 0.1);
+        s.data[3] = 0.0; // constant feature: std := 1
+        let sl = |a: usize, b: usize| [a, b];
+        let cfg = OmgConfig {
+            format: FORMAT.into(),
+            variant: "FE".into(),
+            joints: j,
+            key: k,
+            key_joint_indices: vec![1],
+            model_width: n,
+            sizes: OmgSizes {
+                ae_hidden: hae,
+                latent: l,
+                cost_hidden: hc,
+                expert_hidden: he,
+                gate_hidden: hg,
+                experts: ke,
+            },
+            slices: [
+                ("phase", sl(0, np)),
+                ("pose", sl(np, np + npose)),
+                ("pos", sl(np, np + 3 * j)),
+                ("rot", sl(np + 3 * j, np + 9 * j)),
+                ("vel", sl(np + 9 * j, np + npose)),
+                ("cost", sl(np + npose, np + npose + nc)),
+                ("pos_cost", sl(np + npose, np + npose + 3 * k)),
+                ("rot_cost", sl(np + npose + 3 * k, np + npose + nc)),
+                ("target", sl(np + npose + nc, n)),
+                ("target_pos", sl(np + npose + nc, np + npose + nc + 3 * k)),
+                ("target_rot", sl(np + npose + nc + 3 * k, n)),
+            ]
+            .into_iter()
+            .map(|(a, b)| (a.to_string(), b))
+            .collect(),
+            out_slices: [
+                ("dphase", sl(0, np)),
+                ("z", sl(np, np + l)),
+                ("cost", sl(np + l, mo)),
+            ]
+            .into_iter()
+            .map(|(a, b)| (a.to_string(), b))
+            .collect(),
+            phase_update: PhaseUpdate { a: 0.9 },
+            mode: "grounded".into(),
+            encoder_columns: None,
+            normalisation: None,
+        };
+        (cfg, arrays)
+    }
+
+    /// The forward pass as `tools/omg/omg_np.py` writes it, straight from
+    /// the tensors.
+    fn reference(cfg: &OmgConfig, t: &BTreeMap<String, NpArray>, raw: &[f64]) -> Vec<f64> {
+        let v = |n: &str| t[n].data.clone();
+        let std: Vec<f64> = v("norm.std")
+            .into_iter()
+            .map(|s| if s < MIN_STD { 1.0 } else { s })
+            .collect();
+        let mean = v("norm.mean");
+        let x: Vec<f64> = (0..raw.len())
+            .map(|i| (raw[i] - mean[i]) / std[i])
+            .collect();
+        let lin = |w: &NpArray, b: &[f64], x: &[f64]| -> Vec<f64> {
+            let (o, i) = (w.shape[0] as usize, w.shape[1] as usize);
+            (0..o)
+                .map(|r| b[r] + (0..i).map(|c| w.data[r * i + c] * x[c]).sum::<f64>())
+                .collect()
+        };
+        let mlp = |name: &str, mut x: Vec<f64>| {
+            for i in 0..3 {
+                x = lin(
+                    &t[&format!("{name}.{i}.w")],
+                    &v(&format!("{name}.{i}.b")),
+                    &x,
+                );
+                if i < 2 {
+                    x = x.into_iter().map(elu).collect();
+                }
+            }
+            x
+        };
+        let r = |n: &str| cfg.slice(n);
+        let zc = mlp("enc", x[r("pose")].to_vec());
+        let mut cin = x[r("cost")].to_vec();
+        cin.extend_from_slice(&x[r("target")]);
+        let c = mlp("cost", cin);
+        let logits = mlp("gate", x[r("phase")].to_vec());
+        let m = logits.iter().copied().fold(f64::MIN, f64::max);
+        let e: Vec<f64> = logits.iter().map(|l| (l - m).exp()).collect();
+        let alpha: Vec<f64> = e.iter().map(|v| v / e.iter().sum::<f64>()).collect();
+        let mut hv = [zc, c].concat();
+        for l in 0..3 {
+            let w = &t[&format!("experts.w{l}")];
+            let b = v(&format!("experts.b{l}"));
+            let (k, i, o) = (
+                w.shape[0] as usize,
+                w.shape[1] as usize,
+                w.shape[2] as usize,
+            );
+            let mut out = vec![0.0; o];
+            for (e, a) in alpha.iter().enumerate().take(k) {
+                for (oo, acc) in out.iter_mut().enumerate() {
+                    let d: f64 = (0..i)
+                        .map(|ii| hv[ii] * w.data[(e * i + ii) * o + oo])
+                        .sum();
+                    *acc += a * (d + b[e * o + oo]);
+                }
+            }
+            hv = if l < 2 {
+                out.into_iter().map(elu).collect()
+            } else {
+                out
+            };
+        }
+        let os = |n: &str| {
+            let [a, b] = cfg.out_slices[n];
+            a..b
+        };
+        let mut y = vec![0.0; raw.len()];
+        for (i, col) in r("phase").enumerate() {
+            y[col] = 0.9 * hv[os("dphase")][i] + 0.1 * x[col];
+        }
+        let pose = mlp("dec", hv[os("z")].to_vec());
+        y[r("pose")].copy_from_slice(&pose);
+        y[r("cost")].copy_from_slice(&hv[os("cost")]);
+        y[r("target")].copy_from_slice(&x[r("target")]);
+        (0..y.len()).map(|i| y[i] * std[i] + mean[i]).collect()
+    }
+
+    #[test]
+    fn the_graph_computes_the_omg_forward_pass() {
+        let (cfg, arrays) = tiny(1);
+        let m = net_from_omg(&cfg, &arrays).unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        for _ in 0..20 {
+            let x: Vec<f64> = (0..cfg.model_width)
+                .map(|_| rng.gen_range(-2.0..2.0))
+                .collect();
+            let (got, want) = (m.step(&x), reference(&cfg, &arrays, &x));
+            for (g, w) in got.iter().zip(&want) {
+                assert!((g - w).abs() < 1e-12, "{g} vs {w}");
+            }
+        }
+        let Wiring::Graph(g) = &m.net.wiring else {
+            panic!()
+        };
+        assert_eq!(g.nodes.len(), 16);
+        // The constant feature's std became 1.
+        assert_eq!(m.net.xstd[3], 1.0);
+    }
+
+    #[test]
+    fn fs_scatters_the_encoder_columns() {
+        let (mut cfg, mut arrays) = tiny(2);
+        // FS: the encoder reads columns 4, 7 and 9 only.
+        let cols = vec![4usize, 7, 9];
+        cfg.variant = "FS".into();
+        cfg.encoder_columns = Some(cols.clone());
+        let h = cfg.sizes.ae_hidden;
+        let w0: Vec<f64> = (0..h * 3).map(|i| (i as f64 * 0.37).sin()).collect();
+        arrays.insert(
+            "enc.0.w".into(),
+            NpArray {
+                shape: vec![h as u64, 3],
+                data: w0.clone(),
+            },
+        );
+        let m = net_from_omg(&cfg, &arrays).unwrap();
+        let x: Vec<f64> = (0..cfg.model_width)
+            .map(|i| (i as f64 * 0.11).cos())
+            .collect();
+        // The same model with the encoder reading a full-width pose block
+        // whose other columns have zero weights.
+        let mut full = arrays.clone();
+        let np = cfg.slice("pose");
+        let mut wf = vec![0.0; h * np.len()];
+        for r in 0..h {
+            for (c, &col) in cols.iter().enumerate() {
+                wf[r * np.len() + col - np.start] = w0[r * 3 + c];
+            }
+        }
+        full.insert(
+            "enc.0.w".into(),
+            NpArray {
+                shape: vec![h as u64, np.len() as u64],
+                data: wf,
+            },
+        );
+        let mut fe = cfg.clone();
+        fe.variant = "FE".into();
+        fe.encoder_columns = None;
+        let want = reference(&fe, &full, &x);
+        for (g, w) in m.step(&x).iter().zip(&want) {
+            assert!((g - w).abs() < 1e-12);
+        }
+    }
+
+    fn err(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> String {
+        format!("{:#}", net_from_omg(cfg, arrays).unwrap_err())
+    }
+
+    #[test]
+    fn missing_and_ill_shaped_tensors_and_bad_configs_are_named() {
+        let (cfg, arrays) = tiny(3);
+        let mut a = arrays.clone();
+        a.remove("experts.b1");
+        assert_eq!(err(&cfg, &a), "tensor \"experts.b1\" is missing");
+        let mut a = arrays.clone();
+        a.get_mut("dec.1.w").unwrap().shape = vec![4, 5];
+        assert_eq!(
+            err(&cfg, &a),
+            "tensor \"dec.1.w\" has shape [4, 5], expected [5, 5] (decoder 5 -> 5)"
+        );
+        let mut c = cfg.clone();
+        c.sizes.latent = 4;
+        assert!(
+            err(&c, &arrays).starts_with("out_slices dphase 0..2, z 2..5, cost 5..11 must have")
+        );
+        let mut c = cfg.clone();
+        c.variant = "RBF-CAT".into();
+        assert!(err(&c, &arrays).contains("needs an RBF op"));
+        let mut c = cfg.clone();
+        c.phase_update.a = 1.5;
+        assert_eq!(
+            err(&c, &arrays),
+            "phase_update.a = 1.5: expected 0 < a <= 1"
+        );
+        let mut c = cfg.clone();
+        c.slices.insert("pose".into(), [2, 20]);
+        assert_eq!(
+            err(&c, &arrays),
+            "slices.pose has 18 columns, but J = 2, K = 1 make it 24"
+        );
+        let mut c = cfg.clone();
+        c.normalisation = Some(OmgNormalisation {
+            rule: String::new(),
+            mean: Some(vec![0.0; c.model_width]),
+            std: None,
+        });
+        assert!(err(&c, &arrays)
+            .starts_with("normalisation.mean[0] = 0, but the weights' norm.mean[0] = "));
+    }
+}

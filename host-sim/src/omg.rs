@@ -1,0 +1,581 @@
+//! OMG models on the host: the reaching rollout loop of `tools/omg/omg_np.py`
+//! (feed `Y` back as the next `X`, overwrite the target block every frame
+//! and, in grounded mode, recompute the cost block from the decoded pose),
+//! driven by the f64 graph forward ([`OmgNet::step`]) or by the fixed-point
+//! runtime ([`FixedOmg`]), and the figures of `host-sim omg-accuracy`:
+//! the f64 forward against the committed PyTorch references, and int16 /
+//! int8 blobs against the f64 forward, one step and over the 300-frame
+//! grounded rollout (`docs/omg.md`).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, bail, Context, Result};
+use exporter::net::omg::{read_omg, OmgConfig, OmgNet};
+use exporter::quantise::QuantOptions;
+use phasegate::blob::WeightFormat;
+use phasegate::{Model, Phase, Runtime};
+use serde::Serialize;
+
+use crate::eval::{host_runtime, HOST_CAPACITY};
+
+/// A `(clips, frames, width)` array.
+#[derive(Clone, Debug)]
+pub struct Clips {
+    /// Clips, frames, width.
+    pub dims: [usize; 3],
+    /// Values in C order.
+    pub data: Vec<f64>,
+}
+
+impl Clips {
+    /// Frame `t` of clip `c`.
+    pub fn row(&self, c: usize, t: usize) -> &[f64] {
+        let w = self.dims[2];
+        &self.data[(c * self.dims[1] + t) * w..][..w]
+    }
+
+    fn read(path: &Path) -> Result<Clips> {
+        let (shape, data) = crate::npy::read_array_f32(path)?;
+        let [c, t, w] = shape[..] else {
+            bail!(
+                "{}: shape {shape:?}, expected (clips, frames, width)",
+                path.display()
+            );
+        };
+        Ok(Clips {
+            dims: [c, t, w],
+            data: data.into_iter().map(f64::from).collect(),
+        })
+    }
+}
+
+/// The PyTorch reference outputs committed beside a model (`ref_*.npy`).
+#[derive(Clone, Debug)]
+pub struct References {
+    /// Raw test frames (clips, F, n).
+    pub inputs: Clips,
+    /// PyTorch one-step outputs for them (clips, F, n).
+    pub one_step: Clips,
+    /// PyTorch grounded rollouts (clips, 300, n).
+    pub rollout: Clips,
+    /// The target block of every rollout frame (clips, 300, 9K).
+    pub targets: Clips,
+}
+
+/// A model directory: the imported model and its references.
+pub struct OmgDir {
+    /// The directory.
+    pub dir: PathBuf,
+    /// The imported model.
+    pub omg: OmgNet,
+    /// Its references.
+    pub refs: References,
+}
+
+/// Reads `config.json`, `model.safetensors` and the `ref_*.npy` of `dir`.
+pub fn load_dir(dir: &Path) -> Result<OmgDir> {
+    let omg = read_omg(&dir.join("model.safetensors"), &dir.join("config.json"))?;
+    let r = |name: &str| Clips::read(&dir.join(format!("{name}.npy")));
+    let refs = References {
+        inputs: r("ref_inputs")?,
+        one_step: r("ref_one_step")?,
+        rollout: r("ref_rollout_grounded")?,
+        targets: r("ref_rollout_targets")?,
+    };
+    let n = omg.config.model_width;
+    let t = omg.config.slice("target").len();
+    for (name, c, w) in [
+        ("ref_inputs", &refs.inputs, n),
+        ("ref_one_step", &refs.one_step, n),
+        ("ref_rollout_grounded", &refs.rollout, n),
+        ("ref_rollout_targets", &refs.targets, t),
+    ] {
+        if c.dims[2] != w {
+            bail!(
+                "{}/{name}.npy: width {}, expected {w}",
+                dir.display(),
+                c.dims[2]
+            );
+        }
+    }
+    Ok(OmgDir {
+        dir: dir.to_path_buf(),
+        omg,
+        refs,
+    })
+}
+
+fn normalised(v: [f64; 3]) -> [f64; 3] {
+    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-8);
+    [v[0] / n, v[1] / n, v[2] / n]
+}
+
+/// (side, up, forward) unit axes from a 6-D forward/up rotation,
+/// side = normalise(up x forward).
+fn axes(r: &[f64]) -> [[f64; 3]; 3] {
+    let f = normalised([r[0], r[1], r[2]]);
+    let u = normalised([r[3], r[4], r[5]]);
+    let s = normalised([
+        u[1] * f[2] - u[2] * f[1],
+        u[2] * f[0] - u[0] * f[2],
+        u[0] * f[1] - u[1] * f[0],
+    ]);
+    [s, u, f]
+}
+
+/// The cost block (6K) recomputed from a raw frame's decoded pose and its
+/// targets (`omg_np.costs_from_frame`): target position minus key-joint
+/// position (3K), then per key joint the angles / pi between the side, up
+/// and forward axes of target and joint (3K).
+pub fn grounded_costs(cfg: &OmgConfig, y: &[f64]) -> Vec<f64> {
+    let (pos, rot) = (cfg.slice("pos"), cfg.slice("rot"));
+    let (tpos, trot) = (cfg.slice("target_pos"), cfg.slice("target_rot"));
+    let k = cfg.key;
+    let mut out = vec![0.0; 6 * k];
+    for (i, &j) in cfg.key_joint_indices.iter().enumerate() {
+        for d in 0..3 {
+            out[3 * i + d] = y[tpos.start + 3 * i + d] - y[pos.start + 3 * j + d];
+        }
+        let at = axes(&y[trot.start + 6 * i..][..6]);
+        let aj = axes(&y[rot.start + 6 * j..][..6]);
+        for a in 0..3 {
+            let dot: f64 = (0..3).map(|d| at[a][d] * aj[a][d]).sum();
+            out[3 * k + 3 * i + a] = dot.clamp(-1.0, 1.0).acos() / std::f64::consts::PI;
+        }
+    }
+    out
+}
+
+/// What is fed back besides the network's output.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// The predicted costs are fed back (the thesis's loop).
+    Faithful,
+    /// The costs are recomputed from the decoded pose and the targets.
+    Grounded,
+}
+
+/// The rollout loop: frame 0 is `first`; every later frame `t` is
+/// `step(previous)` with its target block set to `targets[t]` and, in
+/// grounded mode, its costs recomputed. Returns every frame (raw units).
+pub fn rollout(
+    cfg: &OmgConfig,
+    first: &[f64],
+    targets: &[&[f64]],
+    mode: Mode,
+    mut step: impl FnMut(&[f64]) -> Result<Vec<f64>>,
+) -> Result<Vec<Vec<f64>>> {
+    let (tr, cr) = (cfg.slice("target"), cfg.slice("cost"));
+    let mut out = vec![first.to_vec()];
+    for (t, target) in targets.iter().enumerate().skip(1) {
+        let prev = out.last().map_or(first, Vec::as_slice);
+        let mut y = step(prev).with_context(|| format!("frame {t}"))?;
+        y[tr.clone()].copy_from_slice(target);
+        if mode == Mode::Grounded {
+            let c = grounded_costs(cfg, &y);
+            y[cr.clone()].copy_from_slice(&c);
+        }
+        out.push(y);
+    }
+    Ok(out)
+}
+
+/// The grounded rollout of clip `c` of the references, one step by `step`.
+pub fn reference_rollout(
+    d: &OmgDir,
+    c: usize,
+    step: impl FnMut(&[f64]) -> Result<Vec<f64>>,
+) -> Result<Vec<Vec<f64>>> {
+    let frames = d.refs.targets.dims[1];
+    let targets: Vec<&[f64]> = (0..frames).map(|t| d.refs.targets.row(c, t)).collect();
+    rollout(
+        &d.omg.config,
+        d.refs.inputs.row(c, 0),
+        &targets,
+        Mode::Grounded,
+        step,
+    )
+}
+
+/// One frame of a blob on the host runtime, raw units in and out (f32 at
+/// the runtime's boundary).
+pub struct FixedOmg<'b> {
+    rt: Box<Runtime<'b, HOST_CAPACITY>>,
+    q: Vec<i16>,
+    xf: Vec<f32>,
+    yf: Vec<f32>,
+}
+
+impl<'b> FixedOmg<'b> {
+    /// Loads `blob` (an OMG graph blob).
+    pub fn new(blob: &'b [u8]) -> Result<Self> {
+        let model = Model::from_bytes(blob).map_err(|e| anyhow!("model blob: {e}"))?;
+        let (n_in, n_out) = (model.input_dim(), model.output_dim());
+        Ok(FixedOmg {
+            rt: host_runtime(model)?,
+            q: vec![0; n_in],
+            xf: vec![0.0; n_in],
+            yf: vec![0.0; n_out],
+        })
+    }
+
+    /// The network's output for raw input `x`.
+    pub fn run(&mut self, x: &[f64]) -> Result<Vec<f64>> {
+        for (d, &s) in self.xf.iter_mut().zip(x) {
+            *d = s as f32;
+        }
+        let zero = Phase::from_radians(0.0).map_err(|e| anyhow!("{e}"))?;
+        self.rt
+            .quantise_input(&self.xf, &mut self.q)
+            .map_err(|e| anyhow!("{e}"))?;
+        let y = self
+            .rt
+            .run_quantised(zero, &self.q)
+            .map_err(|e| anyhow!("{e}"))?
+            .to_vec();
+        self.rt
+            .dequantise_output(&y, &mut self.yf)
+            .map_err(|e| anyhow!("{e}"))?;
+        Ok(self.yf.iter().map(|&v| f64::from(v)).collect())
+    }
+}
+
+/// Differences between two sets of frames of one model.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Diff {
+    /// Largest `|a - b| / max(|b|, std_j)` (std_j: the model's standard
+    /// deviation of feature j): relative where |b| is above the feature's
+    /// own spread, in units of that spread below it.
+    pub max_rel: f64,
+    /// Largest `|a - b|`, model units.
+    pub max_abs: f64,
+    /// Largest joint position difference (Euclidean, metres).
+    pub max_joint_m: f64,
+    /// 99th percentile of the joint position differences (metres).
+    pub p99_joint_m: f64,
+    /// Mean joint position difference (metres).
+    pub mean_joint_m: f64,
+    /// Frames compared.
+    pub frames: usize,
+}
+
+/// Compares frames `a` against `b` (the reference).
+pub fn diff(omg: &OmgNet, a: &[Vec<f64>], b: &[Vec<f64>]) -> Diff {
+    let std = &omg.net.xstd;
+    let pos = omg.config.slice("pos");
+    let mut d = Diff {
+        frames: a.len(),
+        ..Diff::default()
+    };
+    let mut joints = Vec::new();
+    for (x, y) in a.iter().zip(b) {
+        for j in 0..x.len() {
+            let e = (x[j] - y[j]).abs();
+            d.max_abs = d.max_abs.max(e);
+            d.max_rel = d.max_rel.max(e / y[j].abs().max(std[j]));
+        }
+        for j in 0..pos.len() / 3 {
+            let p = pos.start + 3 * j;
+            joints.push(
+                (0..3)
+                    .map(|k| (x[p + k] - y[p + k]).powi(2))
+                    .sum::<f64>()
+                    .sqrt(),
+            );
+        }
+    }
+    joints.sort_by(f64::total_cmp);
+    if let Some(&m) = joints.last() {
+        d.max_joint_m = m;
+        d.p99_joint_m = joints[((joints.len() as f64 * 0.99).ceil() as usize).max(1) - 1];
+        d.mean_joint_m = joints.iter().sum::<f64>() / joints.len() as f64;
+    }
+    d
+}
+
+/// The f64 graph forward against the PyTorch references.
+#[derive(Clone, Debug, Serialize)]
+pub struct FloatAgreement {
+    /// One step on `ref_inputs` vs `ref_one_step`.
+    pub one_step: Diff,
+    /// The grounded rollouts vs `ref_rollout_grounded` (all clips' frames).
+    pub rollout: Diff,
+}
+
+fn frames_of(c: &Clips, clip: usize) -> Vec<Vec<f64>> {
+    (0..c.dims[1]).map(|t| c.row(clip, t).to_vec()).collect()
+}
+
+/// Every one-step output of `step` on the reference inputs, all clips.
+fn one_step(d: &OmgDir, mut step: impl FnMut(&[f64]) -> Result<Vec<f64>>) -> Result<Vec<Vec<f64>>> {
+    let [clips, frames, _] = d.refs.inputs.dims;
+    let mut out = Vec::new();
+    for c in 0..clips {
+        for t in 0..frames {
+            out.push(step(d.refs.inputs.row(c, t))?);
+        }
+    }
+    Ok(out)
+}
+
+fn all_frames(c: &Clips) -> Vec<Vec<f64>> {
+    (0..c.dims[0]).flat_map(|k| frames_of(c, k)).collect()
+}
+
+/// The f64 rollouts of every reference clip.
+pub fn float_rollouts(d: &OmgDir) -> Result<Vec<Vec<f64>>> {
+    let mut out = Vec::new();
+    for c in 0..d.refs.targets.dims[0] {
+        out.extend(reference_rollout(d, c, |x| Ok(d.omg.step(x)))?);
+    }
+    Ok(out)
+}
+
+/// Measures [`FloatAgreement`].
+pub fn float_agreement(d: &OmgDir) -> Result<FloatAgreement> {
+    let y = one_step(d, |x| Ok(d.omg.step(x)))?;
+    let ro = float_rollouts(d)?;
+    Ok(FloatAgreement {
+        one_step: diff(&d.omg, &y, &all_frames(&d.refs.one_step)),
+        rollout: diff(&d.omg, &ro, &all_frames(&d.refs.rollout)),
+    })
+}
+
+/// A blob against the f64 forward.
+#[derive(Clone, Debug, Serialize)]
+pub struct FixedAgreement {
+    /// "int16" or "int8".
+    pub weights: &'static str,
+    /// Blob bytes.
+    pub blob_bytes: usize,
+    /// MACs per frame.
+    pub macs_per_frame: u32,
+    /// Activation RAM, bytes.
+    pub ram_bytes: usize,
+    /// One step on the reference inputs vs the f64 forward.
+    pub one_step: Diff,
+    /// Largest one-step error of the pose block's positions, metres (per
+    /// coordinate).
+    pub one_step_pos_max_m: f64,
+    /// The fixed-point grounded rollouts vs the f64 ones (all clips, all
+    /// frames).
+    pub rollout: Diff,
+    /// The same over each clip's first [`HORIZONS`] frames.
+    pub rollout_by_horizon: Vec<(usize, Diff)>,
+}
+
+/// Rollout lengths the differences are also given for.
+pub const HORIZONS: [usize; 3] = [30, 100, 200];
+
+/// `diff` over each clip's first `h` frames of rollouts laid out clip
+/// after clip, `frames` per clip.
+fn diff_within(omg: &OmgNet, a: &[Vec<f64>], b: &[Vec<f64>], frames: usize, h: usize) -> Diff {
+    let pick = |v: &[Vec<f64>]| -> Vec<Vec<f64>> {
+        v.iter()
+            .enumerate()
+            .filter(|(i, _)| i % frames < h)
+            .map(|(_, r)| r.clone())
+            .collect()
+    };
+    diff(omg, &pick(a), &pick(b))
+}
+
+/// How sensitive the model's own grounded rollout is: the f64 rollout of
+/// the net with every dense weight moved by uniform noise of half an int8
+/// step (per row, the step of the row's largest weight over its experts,
+/// as the quantiser's scale), against the unperturbed f64 rollout. A model
+/// whose rollout diverges under this noise cannot follow its f64 rollout
+/// at int8, whatever the rounding.
+pub fn int8_sized_noise(d: &OmgDir, seed: u64) -> Result<Diff> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut noisy = d.omg.clone();
+    for l in &mut noisy.net.layers {
+        let exporter::net::NetLayer::Dense(e) = l else {
+            continue;
+        };
+        let rows = e.w[0].nrows();
+        for r in 0..rows {
+            let max =
+                e.w.iter()
+                    .flat_map(|w| w.row(r).to_vec())
+                    .fold(0.0, |m: f64, v| m.max(v.abs()));
+            let step = max / 127.0;
+            for w in &mut e.w {
+                for v in w.row_mut(r) {
+                    if *v != 0.0 {
+                        *v += (rng.gen::<f64>() - 0.5) * step;
+                    }
+                }
+            }
+        }
+    }
+    let ro_float = float_rollouts(d)?;
+    let mut ro = Vec::new();
+    for c in 0..d.refs.targets.dims[0] {
+        ro.extend(reference_rollout(d, c, |x| Ok(noisy.step(x)))?);
+    }
+    Ok(diff(&d.omg, &ro, &ro_float))
+}
+
+/// Measures a blob of `d`'s model against its f64 forward.
+pub fn fixed_agreement(d: &OmgDir, blob: &[u8], weights: &'static str) -> Result<FixedAgreement> {
+    let model = Model::from_bytes(blob).map_err(|e| anyhow!("model blob: {e}"))?;
+    let mut fx = FixedOmg::new(blob)?;
+    let yf = one_step(d, |x| Ok(d.omg.frame(&fx.run(x)?, x)))?;
+    let yr = one_step(d, |x| Ok(d.omg.step(x)))?;
+    let pos = d.omg.config.slice("pos");
+    let one_step_pos_max_m = yf
+        .iter()
+        .zip(&yr)
+        .flat_map(|(a, b)| pos.clone().map(move |j| (a[j] - b[j]).abs()))
+        .fold(0.0, f64::max);
+    let ro_float = float_rollouts(d)?;
+    let mut ro_fixed = Vec::new();
+    for c in 0..d.refs.targets.dims[0] {
+        ro_fixed.extend(reference_rollout(d, c, |x| {
+            Ok(d.omg.frame(&fx.run(x)?, x))
+        })?);
+    }
+    Ok(FixedAgreement {
+        weights,
+        blob_bytes: blob.len(),
+        macs_per_frame: model.macs_per_frame(),
+        ram_bytes: model.ram_bytes(),
+        one_step: diff(&d.omg, &yf, &yr),
+        one_step_pos_max_m,
+        rollout: diff(&d.omg, &ro_fixed, &ro_float),
+        rollout_by_horizon: HORIZONS
+            .iter()
+            .map(|&h| {
+                let frames = d.refs.targets.dims[1];
+                (h, diff_within(&d.omg, &ro_fixed, &ro_float, frames, h))
+            })
+            .collect(),
+    })
+}
+
+/// Exports `d`'s model with `opts` at `weights`.
+pub fn export(d: &OmgDir, weights: WeightFormat, opts: &QuantOptions) -> Result<Vec<u8>> {
+    let opts = QuantOptions {
+        weights,
+        ..opts.clone()
+    };
+    Ok(exporter::export::export(&d.omg.net, None, &opts)?.0)
+}
+
+/// `host-sim omg-accuracy`'s figures for one model directory.
+#[derive(Clone, Debug, Serialize)]
+pub struct OmgAccuracy {
+    /// The directory.
+    pub dir: String,
+    /// f64 forward vs PyTorch.
+    pub float: FloatAgreement,
+    /// int16 and int8 blobs vs the f64 forward.
+    pub fixed: Vec<FixedAgreement>,
+    /// [`int8_sized_noise`] with seeds 0 and 1.
+    pub int8_sized_noise: Vec<Diff>,
+}
+
+/// Measures everything for `dir`, the blobs quantised with `opts` (its
+/// weight format aside).
+pub fn measure(dir: &Path, opts: &QuantOptions) -> Result<OmgAccuracy> {
+    let d = load_dir(dir)?;
+    let float = float_agreement(&d)?;
+    let mut fixed = Vec::new();
+    for (w, name) in [(WeightFormat::I16, "int16"), (WeightFormat::I8, "int8")] {
+        let blob = export(&d, w, opts)?;
+        fixed.push(fixed_agreement(&d, &blob, name)?);
+    }
+    Ok(OmgAccuracy {
+        dir: dir.display().to_string(),
+        float,
+        fixed,
+        int8_sized_noise: vec![int8_sized_noise(&d, 0)?, int8_sized_noise(&d, 1)?],
+    })
+}
+
+impl OmgAccuracy {
+    /// The figures as a table.
+    pub fn table(&self) -> String {
+        let mut s = format!("{}\n", self.dir);
+        let f = &self.float;
+        s += &format!(
+            "f64 forward vs PyTorch: one step ({} frames) max rel {:.2e}, max abs {:.2e}; \
+             grounded rollout ({} frames) max rel {:.2e}, max abs {:.2e}, max joint {:.2e} m\n",
+            f.one_step.frames,
+            f.one_step.max_rel,
+            f.one_step.max_abs,
+            f.rollout.frames,
+            f.rollout.max_rel,
+            f.rollout.max_abs,
+            f.rollout.max_joint_m
+        );
+        s += "blob   bytes   MACs/frame  RAM B | one step vs f64: pos max cm  joint p99 cm  joint max cm | \
+              rollout vs f64: joint p99 cm  joint max cm  mean cm\n";
+        for x in &self.fixed {
+            s += &format!(
+                "{:<6} {:>7} {:>10} {:>6} | {:>27.3} {:>13.3} {:>13.3} | {:>29.3} {:>13.3} {:>8.3}\n",
+                x.weights,
+                x.blob_bytes,
+                x.macs_per_frame,
+                x.ram_bytes,
+                100.0 * x.one_step_pos_max_m,
+                100.0 * x.one_step.p99_joint_m,
+                100.0 * x.one_step.max_joint_m,
+                100.0 * x.rollout.p99_joint_m,
+                100.0 * x.rollout.max_joint_m,
+                100.0 * x.rollout.mean_joint_m,
+            );
+        }
+        for x in &self.fixed {
+            s += &format!("{:<6} rollout joint p99 cm over the first", x.weights);
+            for (h, d) in &x.rollout_by_horizon {
+                s += &format!(" {h} frames {:.3},", 100.0 * d.p99_joint_m);
+            }
+            s += &format!(" 300 frames {:.3}\n", 100.0 * x.rollout.p99_joint_m);
+        }
+        for (seed, n) in self.int8_sized_noise.iter().enumerate() {
+            s += &format!(
+                "f64 with int8-sized weight noise (seed {seed}) vs f64: rollout joint p99 {:.3} cm, \
+                 max {:.3} cm\n",
+                100.0 * n.p99_joint_m,
+                100.0 * n.max_joint_m
+            );
+        }
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grounded_costs_vanish_at_the_target_and_measure_angles() {
+        // J = 2, K = 1, key joint 1: pose at the target gives zero costs.
+        let json = r#"{"format":"phasegate-omg-1","variant":"FE","J":2,"K":1,
+            "key_joint_indices":[1],"model_width":41,
+            "sizes":{"ae_hidden":1,"latent":1,"cost_hidden":1,"expert_hidden":1,"gate_hidden":1,"experts":1},
+            "slices":{"phase":[0,2],"pos":[2,8],"rot":[8,20],"vel":[20,26],"pose":[2,26],
+              "cost":[26,32],"pos_cost":[26,29],"rot_cost":[29,32],"target":[32,41],
+              "target_pos":[32,35],"target_rot":[35,41]},
+            "out_slices":{"dphase":[0,2],"z":[2,3],"cost":[3,9]},
+            "phase_update":{"a":0.9},"mode":"grounded"}"#;
+        let cfg: OmgConfig = serde_json::from_str(json).unwrap();
+        let mut y = vec![0.0; 41];
+        y[5..8].copy_from_slice(&[0.1, 0.2, 0.3]);
+        y[14..20].copy_from_slice(&[0.0, 0.0, 2.0, 0.0, 3.0, 0.0]); // f = z, u = y
+        y[32..35].copy_from_slice(&[0.1, 0.2, 0.3]);
+        y[35..41].copy_from_slice(&[0.0, 0.0, 1.0, 0.0, 1.0, 0.0]);
+        let c = grounded_costs(&cfg, &y);
+        assert!(c.iter().all(|v| v.abs() < 1e-12), "{c:?}");
+        // Turn the target a quarter about y: forward z -> x; side and
+        // forward are 90 degrees off (0.5), up unchanged.
+        y[35..38].copy_from_slice(&[1.0, 0.0, 0.0]);
+        y[32] = 0.4;
+        let c = grounded_costs(&cfg, &y);
+        assert!((c[0] - 0.3).abs() < 1e-12);
+        assert!((c[3] - 0.5).abs() < 1e-12 && c[4].abs() < 1e-12 && (c[5] - 0.5).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,129 @@
+//! The committed OMG models (`models/omg/tiny_fe_r1`, `tiny_fe_r4_frozen`)
+//! through `exporter omg`'s importer: the exporter's f64 graph forward
+//! against the PyTorch reference outputs committed beside them (one step
+//! and the 300-frame grounded rollout), and int16 / int8 blobs on the host
+//! runtime against that forward (`docs/omg.md` has the figures).
+//!
+//! Relative error: `|a - b| / max(|b|, std_j)` with `std_j` the model's own
+//! standard deviation of feature j (relative above the feature's spread,
+//! in units of it below, so features near zero do not divide by zero).
+
+use std::path::{Path, PathBuf};
+
+use exporter::net::omg::{read_omg, HEADROOM};
+use exporter::quantise::QuantOptions;
+use host_sim::omg::{export, fixed_agreement, float_agreement, load_dir};
+use phasegate::blob::WeightFormat;
+
+fn model_dir(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../models/omg")
+        .join(name)
+}
+
+const MODELS: [&str; 2] = ["tiny_fe_r1", "tiny_fe_r4_frozen"];
+
+#[test]
+fn the_f64_graph_forward_reproduces_the_pytorch_references() {
+    for name in MODELS {
+        let d = load_dir(&model_dir(name)).unwrap();
+        let a = float_agreement(&d).unwrap();
+        eprintln!("{name}: {a:?}");
+        // One step: the references are float32 PyTorch outputs.
+        assert!(a.one_step.max_rel <= 1e-4, "{name}: {:?}", a.one_step);
+        // 300 frames fed back: float32 rounding in the reference grows to
+        // a few 1e-4 of a feature's spread (measured 5.1e-4 on R1), joint
+        // positions within 0.1 mm (measured 7.2e-6 m).
+        assert!(a.rollout.max_rel <= 2e-3, "{name}: {:?}", a.rollout);
+        assert!(a.rollout.max_joint_m <= 1e-4, "{name}: {:?}", a.rollout);
+        assert_eq!(a.rollout.frames, d.refs.rollout.dims[0] * 300);
+    }
+}
+
+#[test]
+fn fixed_point_blobs_follow_the_f64_forward() {
+    let opts = QuantOptions {
+        headroom: HEADROOM,
+        ..QuantOptions::default()
+    };
+    for name in MODELS {
+        let d = load_dir(&model_dir(name)).unwrap();
+        let i16 =
+            fixed_agreement(&d, &export(&d, WeightFormat::I16, &opts).unwrap(), "int16").unwrap();
+        let i8 =
+            fixed_agreement(&d, &export(&d, WeightFormat::I8, &opts).unwrap(), "int8").unwrap();
+        eprintln!("{name}: {i16:?}\n{i8:?}");
+        // One step, metres.
+        assert!(i16.one_step.max_joint_m <= 0.001, "{name}: {i16:?}");
+        assert!(i8.one_step.p99_joint_m <= 0.01, "{name}: {i8:?}");
+        // The grounded rollout: int16 p99 joint difference within 1 cm.
+        assert!(i16.rollout.p99_joint_m <= 0.01, "{name}: {i16:?}");
+    }
+    // int8 within 2 cm p99 over the rollout holds on R4; on R1 it does not
+    // (measured 5.7 cm, docs/omg.md): the R1 rollout amplifies int8's
+    // one-step differences (p99 0.7 cm) and no single layer at int16 fixes it.
+    let d = load_dir(&model_dir("tiny_fe_r4_frozen")).unwrap();
+    let i8 = fixed_agreement(&d, &export(&d, WeightFormat::I8, &opts).unwrap(), "int8").unwrap();
+    assert!(i8.rollout.p99_joint_m <= 0.02, "{i8:?}");
+}
+
+#[test]
+fn import_errors_name_the_file_and_the_tensor() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = model_dir("tiny_fe_r1");
+    let arrays = exporter::cp::import::read_arrays(&src.join("model.safetensors")).unwrap();
+    let write = |path: &Path, skip: &str, reshape: Option<(&str, Vec<u64>)>| {
+        let list: Vec<(&str, Vec<u64>, Vec<f32>)> = arrays
+            .iter()
+            .filter(|(n, _)| n.as_str() != skip)
+            .map(|(n, a)| {
+                let shape = match &reshape {
+                    Some((r, s)) if r == n => s.clone(),
+                    _ => a.shape.clone(),
+                };
+                (
+                    n.as_str(),
+                    shape,
+                    a.data.iter().map(|&v| v as f32).collect(),
+                )
+            })
+            .collect();
+        exporter::cp::import::write_arrays(path, &list).unwrap();
+    };
+    let cfg = src.join("config.json");
+    let w = dir.path().join("missing.safetensors");
+    write(&w, "experts.w1", None);
+    let e = format!("{:#}", read_omg(&w, &cfg).unwrap_err());
+    assert_eq!(
+        e,
+        format!("{}: tensor \"experts.w1\" is missing", w.display())
+    );
+    let w = dir.path().join("shape.safetensors");
+    write(&w, "", Some(("gate.1.w", vec![8, 32])));
+    let e = format!("{:#}", read_omg(&w, &cfg).unwrap_err());
+    assert_eq!(
+        e,
+        format!(
+            "{}: tensor \"gate.1.w\" has shape [8, 32], expected [16, 16] (gate 16 -> 16)",
+            w.display()
+        )
+    );
+    // An inconsistent config names the config.
+    let mut c: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&cfg).unwrap()).unwrap();
+    c["out_slices"]["z"] = serde_json::json!([8, 41]);
+    let bad = dir.path().join("config.json");
+    std::fs::write(&bad, c.to_string()).unwrap();
+    let e = format!(
+        "{:#}",
+        read_omg(&src.join("model.safetensors"), &bad).unwrap_err()
+    );
+    assert!(
+        e.starts_with(&format!(
+            "{}: out_slices dphase 0..8, z 8..41",
+            bad.display()
+        )),
+        "{e}"
+    );
+    assert!(!e.contains('\n'));
+}
