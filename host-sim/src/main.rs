@@ -106,6 +106,11 @@ enum Command {
         /// omg --headroom`).
         #[arg(long, default_value_t = exporter::net::omg::HEADROOM)]
         headroom: f64,
+        /// Error-aware rounding of the int8 blobs from this many normal
+        /// samples (as `exporter omg --compensation-samples`); 0 rounds to
+        /// nearest.
+        #[arg(long, default_value_t = 0)]
+        compensation_samples: usize,
     },
     /// Run a blob on the Cortex-M4 firmware under QEMU, bit for bit against the host runtime.
     Target {
@@ -285,10 +290,12 @@ fn run(cli: Cli) -> Result<()> {
             json,
             calibration_scale,
             headroom,
+            compensation_samples,
         } => {
             let opts = exporter::quantise::QuantOptions {
                 calibration_scale,
                 headroom,
+                compensation_samples,
                 ..Default::default()
             };
             let mut all = Vec::new();
