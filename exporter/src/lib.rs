@@ -17,4 +17,5 @@ pub mod ops;
 pub mod pfnn_dir;
 pub mod plan;
 pub mod quantise;
+pub mod sizes;
 pub mod style;
