@@ -253,7 +253,7 @@ fn summary(r: &ExportReport, out: &Path) {
 }
 
 fn inspect(path: &Path) -> Result<()> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let bytes = exporter::atomic::read_input(path).with_context(|| format!("cannot read {}", path.display()))?;
     match phasegate::Model::from_bytes(&bytes) {
         Ok(model) => {
             print!("{}", exporter::inspect::describe(&model));
@@ -298,6 +298,7 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 fn main() -> ExitCode {
+    exporter::atomic::guard_inputs();
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -174,7 +174,7 @@ fn eval_cmd(
     let p = npy::read_vector_f32(phases)?;
     if let Some(model) = model {
         let blob =
-            std::fs::read(&model).map_err(|e| anyhow!("cannot read {}: {e}", model.display()))?;
+            exporter::atomic::read_input(&model).map_err(|e| anyhow!("cannot read {}: {e}", model.display()))?;
         let m =
             phasegate::Model::from_bytes(&blob).map_err(|e| anyhow!("{}: {e}", model.display()))?;
         let x = npy::read_matrix_f32(inputs, m.input_dim())?;
@@ -315,6 +315,7 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 fn main() -> ExitCode {
+    exporter::atomic::guard_inputs();
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

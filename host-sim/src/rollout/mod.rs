@@ -94,7 +94,7 @@ pub fn rollout_from_args(args: &RolloutArgs) -> Result<(Rollout, String)> {
     }
     if let Some(model) = &args.model {
         let blob =
-            std::fs::read(model).with_context(|| format!("cannot read {}", model.display()))?;
+            exporter::atomic::read_input(model).with_context(|| format!("cannot read {}", model.display()))?;
         let mut ctl = FixedController::new(&blob, format!("fixed point ({})", model.display()))
             .map_err(|e| anyhow!("{}: {e}", model.display()))?;
         let ram = ctl.device_ram_bytes();
