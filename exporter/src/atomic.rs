@@ -69,9 +69,14 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         .prefix(".phasegate-")
         .suffix(".tmp")
         .tempfile_in(dir)
-        .with_context(|| {
-            format!(
-                "cannot write {}: cannot create a file in {}",
+        .map_err(|e| {
+            // The OS reason alone: tempfile's message names its random
+            // temporary file, which never existed.
+            let why = e
+                .raw_os_error()
+                .map_or(e.kind().to_string(), |c| std::io::Error::from_raw_os_error(c).to_string());
+            anyhow::anyhow!(
+                "cannot write {}: cannot create a file in {}: {why}",
                 path.display(),
                 dir.display()
             )
