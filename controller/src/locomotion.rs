@@ -387,7 +387,11 @@ mod tests {
             let after = state.pose();
             assert_eq!(after.frame, before.frame);
             assert_eq!(after.joint_positions, before.joint_positions);
-            assert!(after.joint_positions.iter().flatten().all(|v| v.is_finite()));
+            assert!(after
+                .joint_positions
+                .iter()
+                .flatten()
+                .all(|v| v.is_finite()));
         }
     }
 }

@@ -48,7 +48,10 @@ fn is_input(path: &Path) -> bool {
     };
     INPUTS
         .lock()
-        .map(|v| v.iter().any(|i| dest == *i || (i.is_dir() && dest.starts_with(i))))
+        .map(|v| {
+            v.iter()
+                .any(|i| dest == *i || (i.is_dir() && dest.starts_with(i)))
+        })
         .unwrap_or(false)
 }
 
@@ -70,11 +73,15 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         .suffix(".tmp")
         .tempfile_in(dir)
         .map_err(|e| {
-            // The OS reason alone: tempfile's message names its random
+            // The reason alone: tempfile's message names its random
             // temporary file, which never existed.
-            let why = e
-                .raw_os_error()
-                .map_or(e.kind().to_string(), |c| std::io::Error::from_raw_os_error(c).to_string());
+            let why = if !dir.exists() {
+                "no such directory".to_string()
+            } else if !dir.is_dir() {
+                "not a directory".to_string()
+            } else {
+                e.kind().to_string() // "permission denied", ...
+            };
             anyhow::anyhow!(
                 "cannot write {}: cannot create a file in {}: {why}",
                 path.display(),

@@ -165,10 +165,13 @@ fn load_pfnn_dir(
     Ok(out)
 }
 
+/// Quantises and writes `net`, read from `source` (named in errors about
+/// the network's values).
 fn export(
     net: &Net,
     residual: Option<exporter::control_points::Residual>,
     q: &OutputArgs,
+    source: &Path,
 ) -> Result<()> {
     let weights = if q.weight_bits == 16 {
         WeightFormat::I16
@@ -188,7 +191,8 @@ fn export(
         ..QuantOptions::default()
     };
     let pb = spinner("calibrating and quantising");
-    let (blob, report) = exporter::export::export(net, residual, &opts)?;
+    let (blob, report) = exporter::export::export(net, residual, &opts)
+        .with_context(|| source.display().to_string())?;
     pb.finish_and_clear();
     write_outputs(&blob, &report, q)?;
     if std::io::stdout().is_terminal() || std::env::var_os("PHASEGATE_VERBOSE").is_some() {
@@ -253,7 +257,8 @@ fn summary(r: &ExportReport, out: &Path) {
 }
 
 fn inspect(path: &Path) -> Result<()> {
-    let bytes = exporter::atomic::read_input(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let bytes = exporter::atomic::read_input(path)
+        .with_context(|| format!("cannot read {}", path.display()))?;
     match phasegate::Model::from_bytes(&bytes) {
         Ok(model) => {
             print!("{}", exporter::inspect::describe(&model));
@@ -274,11 +279,11 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Pfnn { weights, quant } => {
             let (net, residual) = load_pfnn_dir(&weights, quant.gating.into())?;
-            export(&net, residual, &quant.out)
+            export(&net, residual, &quant.out, &weights)
         }
         Command::Npz { weights, quant } => {
             let net = exporter::npz::pfnn_from_npz(&weights, quant.gating.into())?;
-            export(&net, None, &quant.out)
+            export(&net, None, &quant.out, &weights)
         }
         Command::Graph {
             graph,
@@ -286,7 +291,7 @@ fn run(cli: Cli) -> Result<()> {
             out,
         } => {
             let net = exporter::net::json::read_graph(&graph, &weights)?;
-            export(&net, None, &out)
+            export(&net, None, &out, &weights)
         }
         Command::Cp(a) => exporter::cp::cli::cp(&a),
         Command::CpImport(a) => exporter::cp::cli::cp_import(&a),

@@ -204,7 +204,10 @@ fn pfnn_from_arrays(
     let (xmean, xstd, ymean, ystd) = (v("Xmean")?, v("Xstd")?, v("Ymean")?, v("Ystd")?);
     for (name, std) in [("Xstd", &xstd), ("Ystd", &ystd)] {
         if let Some(i) = std.iter().position(|&s| s <= 0.0) {
-            bail!("{}: array {name}: entry {i} is not positive", path.display());
+            bail!(
+                "{}: array {name}: entry {i} is not positive",
+                path.display()
+            );
         }
     }
     let mut layers = Vec::new();
@@ -220,7 +223,10 @@ fn pfnn_from_arrays(
             );
         };
         let per = crate::sizes::mul(rows, cols, &wn).with_context(|| path.display().to_string())?;
-        if crate::sizes::dims::<2>(&b.shape) != Some([k, rows]) || cols != width || k == 0 || per == 0
+        if crate::sizes::dims::<2>(&b.shape) != Some([k, rows])
+            || cols != width
+            || k == 0
+            || per == 0
         {
             bail!(
                 "{}: arrays {wn} {:?} / {bn} {:?} do not fit a layer with {width} inputs",
@@ -232,7 +238,10 @@ fn pfnn_from_arrays(
         if crate::sizes::element_count(&w.shape) != Some(w.data.len())
             || crate::sizes::element_count(&b.shape) != Some(b.data.len())
         {
-            bail!("{}: arrays {wn} / {bn} do not hold their shapes' elements", path.display());
+            bail!(
+                "{}: arrays {wn} / {bn} do not hold their shapes' elements",
+                path.display()
+            );
         }
         let mut layer = ExpertLayer {
             w: Vec::new(),

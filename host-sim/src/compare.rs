@@ -81,7 +81,11 @@ pub fn compare(a: &Matrix<f32>, b: &Matrix<f32>) -> Result<Comparison> {
         );
     }
     if a.rows == 0 || a.cols == 0 {
-        bail!("nothing to compare: both arrays are ({}, {})", a.rows, a.cols);
+        bail!(
+            "nothing to compare: both arrays are ({}, {})",
+            a.rows,
+            a.cols
+        );
     }
     let groups = if a.cols == 311 {
         PFNN_GROUPS

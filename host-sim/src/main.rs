@@ -173,8 +173,8 @@ fn eval_cmd(
 ) -> Result<()> {
     let p = npy::read_vector_f32(phases)?;
     if let Some(model) = model {
-        let blob =
-            exporter::atomic::read_input(&model).map_err(|e| anyhow!("cannot read {}: {e}", model.display()))?;
+        let blob = exporter::atomic::read_input(&model)
+            .map_err(|e| anyhow!("cannot read {}: {e}", model.display()))?;
         let m =
             phasegate::Model::from_bytes(&blob).map_err(|e| anyhow!("{}: {e}", model.display()))?;
         let x = npy::read_matrix_f32(inputs, m.input_dim())?;

@@ -32,7 +32,8 @@ impl<T: Copy> Matrix<T> {
 }
 
 fn read_any<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
-    let bytes = exporter::atomic::read_input(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let bytes = exporter::atomic::read_input(path)
+        .with_context(|| format!("cannot read {}", path.display()))?;
     let what = || path.display().to_string();
     let (header, data) = exporter::npz::parse_npy(&bytes).with_context(what)?;
     let shape = header.shape().to_vec();

@@ -93,7 +93,12 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
 
     /// Wraps a validated model; refuses it when its arena does not fit.
     pub fn new(model: Model<'a>) -> Result<Self> {
-        const { assert!(N <= 256, "a style bank holds at most 256 styles (StyleId is a u8)") };
+        const {
+            assert!(
+                N <= 256,
+                "a style bank holds at most 256 styles (StyleId is a u8)"
+            )
+        };
         let needed = Self::required_elements(&model);
         if needed > A {
             return Err(buffer_error(needed, A));

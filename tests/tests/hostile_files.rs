@@ -140,7 +140,7 @@ fn safetensors(tensors: &[(&str, &str, Vec<u64>, [u64; 2])], data: &[u8]) -> Vec
         );
     }
     let mut header = serde_json::Value::Object(map).to_string().into_bytes();
-    while header.len() % 8 != 0 {
+    while !header.len().is_multiple_of(8) {
         header.push(b' ');
     }
     let mut out = (header.len() as u64).to_le_bytes().to_vec();
@@ -464,11 +464,7 @@ fn npz_without_a_required_array() {
     a.retain(|(n, ..)| n != "b2");
     let w = d.file("m.npz", &pfnn_npz(&a));
     let out = d.path("m.blob");
-    refused(
-        &export_npz(&w, &out),
-        &["m.npz", "missing array b2"],
-        &out,
-    );
+    refused(&export_npz(&w, &out), &["m.npz", "missing array b2"], &out);
 }
 
 #[test]
@@ -517,6 +513,19 @@ fn graph_description_that_does_not_fit_its_weights() {
     );
 }
 
+/// Finite statistics that would give an absurd output stage (an output
+/// std of 1e30): refused by the exporter, naming the file and the output,
+/// instead of writing a blob whose outputs overflow f32.
+#[test]
+fn npz_statistics_that_give_an_absurd_output_stage() {
+    let d = Dir::new();
+    let mut a = pfnn_arrays();
+    a.iter_mut().find(|(n, ..)| n == "Ystd").unwrap().2[2] = 1e30;
+    let w = d.file("m.npz", &pfnn_npz(&a));
+    let out = d.path("m.blob");
+    refused(&export_npz(&w, &out), &["m.npz", "output 2", "2^40"], &out);
+}
+
 // ---- outputs -----------------------------------------------------------------
 
 #[test]
@@ -549,8 +558,15 @@ fn output_path_equal_to_an_input() {
     let err = String::from_utf8_lossy(&o.stderr).into_owned();
     assert!(!o.status.success() && o.status.code() != Some(101), "{err}");
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
-    assert!(err.contains("m.npz") && err.contains("also an input"), "{err}");
-    assert_eq!(std::fs::read(&w).unwrap(), bytes, "the input was overwritten");
+    assert!(
+        err.contains("m.npz") && err.contains("also an input"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(&w).unwrap(),
+        bytes,
+        "the input was overwritten"
+    );
     // host-sim too: eval's output over its own inputs.
     let x = d.file("x.npy", &npy_f32(&[2, 342], &[0.5; 684]));
     let ph = d.file("p.npy", &npy_f32(&[2], &[0.0, 1.0]));
@@ -572,7 +588,10 @@ fn output_path_equal_to_an_input() {
     );
     let err = String::from_utf8_lossy(&o.stderr).into_owned();
     assert!(!o.status.success() && o.status.code() != Some(101), "{err}");
-    assert!(err.contains("x.npy") && err.contains("also an input"), "{err}");
+    assert!(
+        err.contains("x.npy") && err.contains("also an input"),
+        "{err}"
+    );
     assert_eq!(std::fs::read(&x).unwrap(), before);
 }
 
@@ -584,10 +603,9 @@ fn output_path_equal_to_an_input() {
 #[test]
 fn blob_with_an_absurd_output_scale() {
     let d = Dir::new();
-    let good = std::fs::read(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("golden/default/model.blob"),
-    )
-    .unwrap();
+    let good =
+        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("golden/default/model.blob"))
+            .unwrap();
     let model = phasegate::Model::from_bytes(&good).unwrap();
     let mut header = model.header().decoded();
     let mut payload = good[good.len() - header.payload_len as usize..].to_vec();
@@ -632,10 +650,9 @@ fn blob_with_an_absurd_output_scale() {
 /// finite values (it saturates to i16).
 #[test]
 fn output_stage_bounds_are_exact() {
-    let good = std::fs::read(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("golden/default/model.blob"),
-    )
-    .unwrap();
+    let good =
+        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("golden/default/model.blob"))
+            .unwrap();
     let patched = |stage_of: fn(&phasegate::blob::Header) -> u32, field: usize, v: f32| {
         let model = phasegate::Model::from_bytes(&good).unwrap();
         let mut header = model.header().decoded();
@@ -649,7 +666,10 @@ fn output_stage_bounds_are_exact() {
     let out = |h: &phasegate::blob::Header| h.output_stage.offset;
     let inp = |h: &phasegate::blob::Header| h.input_stage.offset;
     let up = |v: f32| f32::from_bits(v.to_bits() + 1);
-    let (s, o) = (phasegate::blob::MAX_OUTPUT_SCALE, phasegate::blob::MAX_OUTPUT_OFFSET);
+    let (s, o) = (
+        phasegate::blob::MAX_OUTPUT_SCALE,
+        phasegate::blob::MAX_OUTPUT_OFFSET,
+    );
     let refused = Err(phasegate::Error::UnsupportedParameter {
         layer: phasegate::STAGE,
     });

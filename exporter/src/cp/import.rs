@@ -45,7 +45,8 @@ use crate::npz::{read_npz, NpArray};
 
 /// Reads every float array of a `.safetensors` file.
 pub fn read_safetensors(path: &Path) -> Result<BTreeMap<String, NpArray>> {
-    let bytes = crate::atomic::read_input(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let bytes = crate::atomic::read_input(path)
+        .with_context(|| format!("cannot read {}", path.display()))?;
     parse_safetensors(&bytes).with_context(|| format!("{}", path.display()))
 }
 
@@ -133,7 +134,10 @@ fn matrix(a: &NpArray, name: &str) -> Result<Array2<f64>> {
     match crate::sizes::dims::<2>(&a.shape) {
         Some([r, c]) => Array2::from_shape_vec((r, c), a.data.clone())
             .map_err(|e| anyhow!("array {name} of shape {:?}: {e}", a.shape)),
-        None => bail!("array {name} has shape {:?}, expected 2 dimensions", a.shape),
+        None => bail!(
+            "array {name} has shape {:?}, expected 2 dimensions",
+            a.shape
+        ),
     }
 }
 
@@ -157,11 +161,17 @@ fn rows(m: &Array2<f64>) -> Vec<Array1<f64>> {
 
 fn dense(w: &NpArray, name: &str) -> Result<Vec<Array2<f64>>> {
     let Some([k, r, c]) = crate::sizes::dims::<3>(&w.shape) else {
-        bail!("array {name} has shape {:?}, expected (K, out, in)", w.shape);
+        bail!(
+            "array {name} has shape {:?}, expected (K, out, in)",
+            w.shape
+        );
     };
     let per = crate::sizes::mul(r, c, name)?;
     if k == 0 || per == 0 || crate::sizes::element_count(&w.shape) != Some(w.data.len()) {
-        bail!("array {name} of shape {:?} is empty or does not hold its elements", w.shape);
+        bail!(
+            "array {name} of shape {:?} is empty or does not hold its elements",
+            w.shape
+        );
     }
     w.data
         .chunks_exact(per)

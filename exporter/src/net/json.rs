@@ -187,7 +187,10 @@ fn dense(
         bail!("array {weight:?} is empty");
     }
     if crate::sizes::element_count(&w.shape) != Some(w.data.len()) {
-        bail!("array {weight:?} does not hold the elements of its shape {:?}", w.shape);
+        bail!(
+            "array {weight:?} does not hold the elements of its shape {:?}",
+            w.shape
+        );
     }
     let b = match arrays.get(bias) {
         None => vec![0.0; rows],
@@ -209,7 +212,9 @@ fn dense(
             .chunks_exact(per)
             .map(|ws| Array2::from_shape_vec((out, inp), ws.to_vec()))
             .collect::<Result<_, _>>()?,
-        b: b.chunks_exact(out).map(|bs| Array1::from(bs.to_vec())).collect(),
+        b: b.chunks_exact(out)
+            .map(|bs| Array1::from(bs.to_vec()))
+            .collect(),
     })
 }
 
@@ -390,7 +395,11 @@ fn slice_text(g: &Graph, s: &Slice, width: usize) -> String {
     if s.start == 0 && usize::from(s.len) == width {
         name.to_string()
     } else {
-        format!("{name}[{}..{}]", s.start, u32::from(s.start).saturating_add(u32::from(s.len)))
+        format!(
+            "{name}[{}..{}]",
+            s.start,
+            u32::from(s.start).saturating_add(u32::from(s.len))
+        )
     }
 }
 
