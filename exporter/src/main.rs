@@ -269,9 +269,9 @@ fn inspect(path: &Path) -> Result<()> {
                 print!("{}", exporter::inspect::describe_style(&style));
                 Ok(())
             }
-            Err(e) => bail!("{}: {e}", path.display()),
+            Err(e) => bail!("{}: {}", path.display(), exporter::inspect::explain(&e)),
         },
-        Err(e) => bail!("{}: {e}", path.display()),
+        Err(e) => bail!("{}: {}", path.display(), exporter::inspect::explain(&e)),
     }
 }
 

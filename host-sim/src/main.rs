@@ -175,8 +175,8 @@ fn eval_cmd(
     if let Some(model) = model {
         let blob = exporter::atomic::read_input(&model)
             .map_err(|e| anyhow!("cannot read {}: {e}", model.display()))?;
-        let m =
-            phasegate::Model::from_bytes(&blob).map_err(|e| anyhow!("{}: {e}", model.display()))?;
+        let m = phasegate::Model::from_bytes(&blob)
+            .map_err(|e| anyhow!("{}: {}", model.display(), exporter::inspect::explain(&e)))?;
         let x = npy::read_matrix_f32(inputs, m.input_dim())?;
         let run = eval::run_fixed(&blob, &x, &p)?;
         if let Some(raw) = raw_out {

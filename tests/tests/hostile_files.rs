@@ -622,7 +622,7 @@ fn blob_with_an_absurd_output_scale() {
     let blob = d.file("absurd.blob", &bad);
     refused(
         &run("exporter", &[p("inspect"), &blob]),
-        &["absurd.blob"],
+        &["absurd.blob", "output stage"],
         &d.path("none"),
     );
     let x = d.file("x.npy", &npy_f32(&[1, 342], &[0.5; 342]));
@@ -642,7 +642,7 @@ fn blob_with_an_absurd_output_scale() {
             &out,
         ],
     );
-    refused(&o, &["absurd.blob"], &out);
+    refused(&o, &["absurd.blob", "output stage"], &out);
 }
 
 /// The output-stage bounds are exact: `|scale| <= 2^24`, `|offset| <= 2^39`
