@@ -38,7 +38,7 @@ impl NpArray {
     /// An array whose `data` holds exactly the element count of `shape`
     /// (checked: a count that overflows is an error, not an empty array).
     pub fn new(shape: Vec<u64>, data: Vec<f64>) -> Result<Self> {
-        let n = crate::sizes::elements(&shape)?;
+        let n = crate::sizes::nonempty(&shape)?;
         if n != data.len() {
             bail!(
                 "shape {shape:?} declares {n} elements, the data has {}",
@@ -130,6 +130,7 @@ pub fn parse_npy(bytes: &[u8]) -> Result<(npyz::NpyHeader, &[u8])> {
     let width = dtype
         .num_bytes()
         .ok_or_else(|| anyhow!("dtype {} is too large", dtype.descr()))?;
+    crate::sizes::nonempty(header.shape())?;
     let need = crate::sizes::bytes_of(header.shape(), width)?;
     match rest.len().cmp(&need) {
         std::cmp::Ordering::Less => bail!(

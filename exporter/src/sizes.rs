@@ -29,6 +29,16 @@ pub fn elements(shape: &[u64]) -> Result<usize> {
     })
 }
 
+/// [`elements`], refusing an empty array: a zero-element array could
+/// still declare a huge dimension (`[2^62, 0]`) that a consumer would loop
+/// over or allocate for, and no input of the tools is legitimately empty.
+pub fn nonempty(shape: &[u64]) -> Result<usize> {
+    match elements(shape)? {
+        0 => Err(anyhow!("shape {shape:?} has no elements")),
+        n => Ok(n),
+    }
+}
+
 /// Bytes of `count` elements of `width` bytes each, or an error.
 pub fn bytes_of(shape: &[u64], width: usize) -> Result<usize> {
     elements(shape)?.checked_mul(width).ok_or_else(|| {
@@ -66,6 +76,8 @@ mod tests {
         assert_eq!(element_count(&[1 << 32, 1 << 32, 0]), None);
         assert!(bytes_of(&[1 << 62], 8).is_err());
         assert_eq!(bytes_of(&[2, 3], 4).unwrap(), 24);
+        assert!(nonempty(&[1 << 62, 0]).is_err());
+        assert_eq!(nonempty(&[2, 3]).unwrap(), 6);
         assert_eq!(dims::<2>(&[2, 3]), Some([2, 3]));
         assert_eq!(dims::<2>(&[2, 3, 4]), None);
     }

@@ -254,6 +254,22 @@ fn npz_shape_whose_element_count_overflows() {
     );
 }
 
+/// An array with no elements but a huge dimension (`(2^62, 0)`): nothing
+/// overflows, but a consumer would loop or allocate for 2^62 rows.
+#[test]
+fn npz_empty_array_with_a_huge_dimension() {
+    let d = Dir::new();
+    let mut entries = pfnn_npz_entries();
+    entries[2] = ("Ymean".into(), npy("<f4", "(4611686018427387904, 0)", &[]));
+    let w = d.file("m.npz", &npz(&entries));
+    let out = d.path("m.blob");
+    refused(
+        &export_npz(&w, &out),
+        &["m.npz", "array Ymean", "no elements"],
+        &out,
+    );
+}
+
 /// The same in a `.safetensors` header.
 #[test]
 fn safetensors_shape_whose_element_count_overflows() {
