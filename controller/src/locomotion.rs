@@ -335,4 +335,63 @@ mod tests {
         assert_eq!(wrap_cycle(-1e-20f32), 0.0);
         assert_eq!(wrap_cycle(f32::NAN), 0.0);
     }
+
+    /// A float network whose output `bad` is `value` from frame `from` on.
+    struct Poisoned {
+        bad: usize,
+        value: f32,
+        from: u32,
+        frames: u32,
+    }
+
+    impl Network<f32> for Poisoned {
+        fn input_dim(&self) -> usize {
+            INPUTS
+        }
+        fn output_dim(&self) -> usize {
+            OUTPUTS
+        }
+        fn predict(&mut self, _phase: f32, _x: &[f32], y: &mut [f32]) -> Result<()> {
+            y.fill(0.01);
+            if self.frames >= self.from {
+                y[self.bad] = self.value;
+            }
+            self.frames += 1;
+            Ok(())
+        }
+        fn mean_output(&self, y: &mut [f32]) -> Result<()> {
+            y.fill(0.0);
+            Ok(())
+        }
+    }
+
+    /// A frame whose network output is NaN or infinite is refused with
+    /// `NonFinite` naming the output, and never reaches the pose.
+    #[test]
+    fn a_non_finite_frame_is_refused_and_leaves_the_pose() {
+        for value in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            let mut net = Poisoned {
+                bad: 200,
+                value,
+                from: 1,
+                frames: 0,
+            };
+            let mut state = Locomotion::new(&net).unwrap();
+            let cmd = Command::moving([0.0, 1.0], crate::Gait::Walk);
+            state.step(&mut net, &cmd).unwrap();
+            let before = state.pose().clone();
+            assert_eq!(
+                state.step(&mut net, &cmd).unwrap_err(),
+                Error::NonFinite { index: 200 }
+            );
+            let after = state.pose();
+            assert_eq!(after.frame, before.frame);
+            assert_eq!(after.joint_positions, before.joint_positions);
+            assert!(after
+                .joint_positions
+                .iter()
+                .flatten()
+                .all(|v| v.is_finite()));
+        }
+    }
 }

@@ -35,6 +35,12 @@ pub enum ImportError {
         found: u64,
     },
 
+    /// The dimensions read off the files imply a size that does not fit a
+    /// `usize` (a directory of huge or sparse files): refused before any
+    /// arithmetic can wrap.
+    #[error("{}: {what} is more than fits in memory (its size overflows)", .path.display())]
+    SizeOverflow { path: PathBuf, what: String },
+
     /// A NaN or infinity in the weights would silently poison every output
     /// (and break fixed-point calibration), so it is rejected at import.
     #[error(
@@ -74,6 +80,7 @@ impl ImportError {
             Self::NotADirectory { path }
             | Self::MissingFile { path }
             | Self::WrongSize { path, .. }
+            | Self::SizeOverflow { path, .. }
             | Self::NonFinite { path, .. }
             | Self::ZeroStd { path, .. }
             | Self::Io { path, .. } => path,

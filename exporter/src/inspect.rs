@@ -21,6 +21,18 @@ fn gating(g: &Gating) -> String {
 }
 
 /// The table `exporter inspect` prints for a valid blob.
+/// The runtime's refusal of a blob, for a person: its `Display`, plus what
+/// `255` (`phasegate::STAGE`: not a node) stands for where it appears.
+pub fn explain(e: &phasegate::Error) -> String {
+    match e {
+        phasegate::Error::UnsupportedParameter { layer } if *layer == phasegate::STAGE => format!(
+            "{e} (255: the header's gating or the input/output stages; an output stage \
+             must keep |scale| <= 2^24 and |offset| <= 2^39, docs/blob-format.md check 34)"
+        ),
+        _ => e.to_string(),
+    }
+}
+
 pub fn describe(model: &Model<'_>) -> String {
     let h = model.header();
     let mut s = String::new();

@@ -18,4 +18,5 @@ pub mod ops;
 pub mod pfnn_dir;
 pub mod plan;
 pub mod quantise;
+pub mod sizes;
 pub mod style;

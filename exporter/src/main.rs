@@ -196,11 +196,14 @@ fn load_pfnn_dir(
     Ok(out)
 }
 
+/// Quantises and writes `net`, read from `source` (named in errors about
+/// the network's values).
 fn export(
     net: &Net,
     residual: Option<exporter::control_points::Residual>,
     q: &OutputArgs,
     default_headroom: f64,
+    source: &Path,
 ) -> Result<()> {
     let weights = if q.weight_bits == 16 {
         WeightFormat::I16
@@ -233,7 +236,8 @@ fn export(
     let (blob, report) = match q.int16_budget {
         None => {
             let pb = spinner("calibrating and quantising");
-            let r = exporter::export::export(net, residual, &opts)?;
+            let r = exporter::export::export(net, residual, &opts)
+                .with_context(|| source.display().to_string())?;
             pb.finish_and_clear();
             r
         }
@@ -250,7 +254,8 @@ fn export(
                 |done, most| {
                     pb.set_message(format!("int16 budget: candidate {done} of at most {most}"));
                 },
-            )?;
+            )
+            .with_context(|| source.display().to_string())?;
             pb.finish_and_clear();
             r
         }
@@ -318,7 +323,8 @@ fn summary(r: &ExportReport, out: &Path) {
 }
 
 fn inspect(path: &Path) -> Result<()> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let bytes = exporter::atomic::read_input(path)
+        .with_context(|| format!("cannot read {}", path.display()))?;
     match phasegate::Model::from_bytes(&bytes) {
         Ok(model) => {
             print!("{}", exporter::inspect::describe(&model));
@@ -329,9 +335,9 @@ fn inspect(path: &Path) -> Result<()> {
                 print!("{}", exporter::inspect::describe_style(&style));
                 Ok(())
             }
-            Err(e) => bail!("{}: {e}", path.display()),
+            Err(e) => bail!("{}: {}", path.display(), exporter::inspect::explain(&e)),
         },
-        Err(e) => bail!("{}: {e}", path.display()),
+        Err(e) => bail!("{}: {}", path.display(), exporter::inspect::explain(&e)),
     }
 }
 
@@ -339,11 +345,11 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Pfnn { weights, quant } => {
             let (net, residual) = load_pfnn_dir(&weights, quant.gating.into())?;
-            export(&net, residual, &quant.out, DEFAULT_HEADROOM)
+            export(&net, residual, &quant.out, DEFAULT_HEADROOM, &weights)
         }
         Command::Npz { weights, quant } => {
             let net = exporter::npz::pfnn_from_npz(&weights, quant.gating.into())?;
-            export(&net, None, &quant.out, DEFAULT_HEADROOM)
+            export(&net, None, &quant.out, DEFAULT_HEADROOM, &weights)
         }
         Command::Graph {
             graph,
@@ -351,7 +357,7 @@ fn run(cli: Cli) -> Result<()> {
             out,
         } => {
             let net = exporter::net::json::read_graph(&graph, &weights)?;
-            export(&net, None, &out, DEFAULT_HEADROOM)
+            export(&net, None, &out, DEFAULT_HEADROOM, &weights)
         }
         Command::Omg {
             weights,
@@ -359,7 +365,7 @@ fn run(cli: Cli) -> Result<()> {
             out,
         } => {
             let omg = exporter::net::omg::read_omg(&weights, &config)?;
-            export(&omg.net, None, &out, exporter::net::omg::HEADROOM)
+            export(&omg.net, None, &out, exporter::net::omg::HEADROOM, &weights)
         }
         Command::Cp(a) => exporter::cp::cli::cp(&a),
         Command::CpImport(a) => exporter::cp::cli::cp_import(&a),
@@ -371,6 +377,7 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 fn main() -> ExitCode {
+    exporter::atomic::guard_inputs();
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

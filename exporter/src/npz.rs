@@ -14,6 +14,8 @@
 //! float32 or float64; the gating (and so what the K experts mean) is given
 //! by the caller.
 
+#![deny(clippy::arithmetic_side_effects)]
+
 use anyhow::{anyhow, bail, Context, Result};
 use ndarray::{Array1, Array2};
 use npyz::WriterBuilder;
@@ -32,10 +34,26 @@ pub struct NpArray {
     pub data: Vec<f64>,
 }
 
+impl NpArray {
+    /// An array whose `data` holds exactly the element count of `shape`
+    /// (checked: a count that overflows is an error, not an empty array).
+    pub fn new(shape: Vec<u64>, data: Vec<f64>) -> Result<Self> {
+        let n = crate::sizes::nonempty(&shape)?;
+        if n != data.len() {
+            bail!(
+                "shape {shape:?} declares {n} elements, the data has {}",
+                data.len()
+            );
+        }
+        Ok(Self { shape, data })
+    }
+}
+
 /// Reads every float array of an `.npz` file.
 pub fn read_npz(path: &Path) -> Result<BTreeMap<String, NpArray>> {
     let file =
         std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    crate::atomic::note_input(path);
     read_npz_from(std::io::BufReader::new(file), path)
 }
 
@@ -48,32 +66,35 @@ pub fn read_npz_from(
         .with_context(|| format!("{} is not an .npz (zip) file", path.display()))?;
     let mut out = BTreeMap::new();
     for i in 0..zip.len() {
-        let mut entry = zip.by_index(i)?;
+        let mut entry = zip
+            .by_index(i)
+            .with_context(|| format!("{}: zip entry {i}", path.display()))?;
         let Some(name) = npyz::npz::array_name_from_file_name(entry.name()).map(str::to_owned)
         else {
             continue;
         };
+        let what = || format!("{}: array {name}", path.display());
         let mut bytes = Vec::new();
-        entry.read_to_end(&mut bytes)?;
-        let npy = npyz::NpyFile::new(&bytes[..])
-            .with_context(|| format!("{}: array {name}", path.display()))?;
-        if npy.order() != npyz::Order::C {
-            bail!(
-                "{}: array {name} is Fortran-ordered; save it in C order",
-                path.display()
-            );
-        }
-        let shape = npy.shape().to_vec();
-        let data: Vec<f64> = match npy.dtype() {
+        entry.read_to_end(&mut bytes).with_context(what)?;
+        let (header, data) = parse_npy(&bytes).with_context(what)?;
+        let shape = header.shape().to_vec();
+        let data: Vec<f64> = match header.dtype() {
             npyz::DType::Plain(t)
                 if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4 =>
             {
-                npy.into_vec::<f32>()?.into_iter().map(f64::from).collect()
+                npyz::NpyFile::with_header(header, data)
+                    .into_vec::<f32>()
+                    .with_context(what)?
+                    .into_iter()
+                    .map(f64::from)
+                    .collect()
             }
             npyz::DType::Plain(t)
                 if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 =>
             {
-                npy.into_vec::<f64>()?
+                npyz::NpyFile::with_header(header, data)
+                    .into_vec::<f64>()
+                    .with_context(what)?
             }
             other => bail!(
                 "{}: array {name} has dtype {}, expected float32 or float64",
@@ -87,9 +108,45 @@ pub fn read_npz_from(
                 path.display()
             );
         }
-        out.insert(name, NpArray { shape, data });
+        let array = NpArray::new(shape, data).with_context(what)?;
+        out.insert(name, array);
     }
     Ok(out)
+}
+
+/// Splits one `.npy` held in memory into its header and its data bytes,
+/// after checking what the header declares against what is there: C
+/// order, an element count and byte count that fit (checked, never
+/// wrapped), and exactly that many data bytes (fewer is a truncated file,
+/// more a damaged one). Errors do not name the file; callers add it.
+pub fn parse_npy(bytes: &[u8]) -> Result<(npyz::NpyHeader, &[u8])> {
+    let mut rest = bytes;
+    let header = npyz::NpyHeader::from_reader(&mut rest)
+        .map_err(|e| anyhow!("not a .npy array (bad header: {e})"))?;
+    if header.order() != npyz::Order::C {
+        bail!("Fortran-ordered; save it in C order");
+    }
+    let dtype = header.dtype();
+    let width = dtype
+        .num_bytes()
+        .ok_or_else(|| anyhow!("dtype {} is too large", dtype.descr()))?;
+    crate::sizes::nonempty(header.shape())?;
+    let need = crate::sizes::bytes_of(header.shape(), width)?;
+    match rest.len().cmp(&need) {
+        std::cmp::Ordering::Less => bail!(
+            "truncated: shape {:?} of {} needs {need} data bytes, the file has {}",
+            header.shape(),
+            dtype.descr(),
+            rest.len()
+        ),
+        std::cmp::Ordering::Greater => bail!(
+            "{} bytes after the data of shape {:?} of {} ({need} bytes)",
+            rest.len().saturating_sub(need),
+            header.shape(),
+            dtype.descr()
+        ),
+        std::cmp::Ordering::Equal => Ok((header, rest)),
+    }
 }
 
 /// Writes float32 arrays to an `.npz` (stored, uncompressed), atomically.
@@ -146,42 +203,56 @@ fn pfnn_from_arrays(
         vector(take(arrays, n, path)?, n).with_context(|| path.display().to_string())
     };
     let (xmean, xstd, ymean, ystd) = (v("Xmean")?, v("Xstd")?, v("Ymean")?, v("Ystd")?);
-    if let Some(i) = xstd.iter().chain(&ystd).position(|&s| s <= 0.0) {
-        bail!("{}: Xstd/Ystd entry {i} is not positive", path.display());
+    for (name, std) in [("Xstd", &xstd), ("Ystd", &ystd)] {
+        if let Some(i) = std.iter().position(|&s| s <= 0.0) {
+            bail!(
+                "{}: array {name}: entry {i} is not positive",
+                path.display()
+            );
+        }
     }
     let mut layers = Vec::new();
     let mut width = xmean.len();
     for l in 0..3 {
         let (wn, bn) = (format!("W{l}"), format!("b{l}"));
         let (w, b) = (take(arrays, &wn, path)?, take(arrays, &bn, path)?);
-        let [k, rows, cols] = w.shape[..] else {
+        let Some([k, rows, cols]) = crate::sizes::dims::<3>(&w.shape) else {
             bail!(
-                "{}: {wn} has shape {:?}, expected (K, rows, cols)",
+                "{}: array {wn} has shape {:?}, expected (K, rows, cols)",
                 path.display(),
                 w.shape
             );
         };
-        let (k, rows, cols) = (k as usize, rows as usize, cols as usize);
-        if b.shape != [k as u64, rows as u64] || cols != width || k == 0 {
+        let per = crate::sizes::mul(rows, cols, &wn).with_context(|| path.display().to_string())?;
+        if crate::sizes::dims::<2>(&b.shape) != Some([k, rows])
+            || cols != width
+            || k == 0
+            || per == 0
+        {
             bail!(
-                "{}: {wn} {:?} / {bn} {:?} do not fit a layer with {width} inputs",
+                "{}: arrays {wn} {:?} / {bn} {:?} do not fit a layer with {width} inputs",
                 path.display(),
                 w.shape,
                 b.shape
+            );
+        }
+        if crate::sizes::element_count(&w.shape) != Some(w.data.len())
+            || crate::sizes::element_count(&b.shape) != Some(b.data.len())
+        {
+            bail!(
+                "{}: arrays {wn} / {bn} do not hold their shapes' elements",
+                path.display()
             );
         }
         let mut layer = ExpertLayer {
             w: Vec::new(),
             b: Vec::new(),
         };
-        for e in 0..k {
-            let ws = &w.data[e * rows * cols..(e + 1) * rows * cols];
+        for (ws, bs) in w.data.chunks_exact(per).zip(b.data.chunks_exact(rows)) {
             layer
                 .w
                 .push(Array2::from_shape_vec((rows, cols), ws.to_vec())?);
-            layer
-                .b
-                .push(Array1::from(b.data[e * rows..(e + 1) * rows].to_vec()));
+            layer.b.push(Array1::from(bs.to_vec()));
         }
         layers.push(layer);
         width = rows;
@@ -252,6 +323,7 @@ pub fn pfnn_to_npz(net: &Net, path: &Path) -> Result<()> {
 }
 
 #[cfg(test)]
+#[allow(clippy::arithmetic_side_effects)] // test fixtures, not file input
 mod tests {
     use super::*;
 

@@ -17,6 +17,8 @@
 //! training run is reported by file name instead of surfacing later as a
 //! garbage animation.
 
+#![deny(clippy::arithmetic_side_effects)]
+
 use std::fs;
 use std::io;
 use std::path::{Path, PathBuf};
@@ -66,7 +68,7 @@ impl PfnnDims {
 
     /// Number of files in a directory of this shape (drives progress bars).
     pub fn file_count(&self) -> usize {
-        4 + 6 * self.tables
+        self.tables.saturating_mul(6).saturating_add(4)
     }
 }
 
@@ -206,7 +208,7 @@ pub fn load_pfnn_dir_dims(
         if let Some(cb) = progress.as_mut() {
             cb(*done, total);
         }
-        *done += 1;
+        *done = done.saturating_add(1);
     };
     tick(&mut done);
 
@@ -283,12 +285,19 @@ fn check_is_dir(dir: &Path) -> Result<(), ImportError> {
 
 /// Reads exactly `len` finite little-endian `f32` from `path`.
 fn read_f32_file(path: &Path, len: usize) -> Result<Vec<f32>, ImportError> {
-    let expected = (len as u64) * 4;
+    let expected = u64::try_from(len)
+        .ok()
+        .and_then(|n| n.checked_mul(4))
+        .ok_or_else(|| ImportError::SizeOverflow {
+            path: path.to_path_buf(),
+            what: format!("{len} float32"),
+        })?;
     // Check the size before reading, so a wrong (possibly huge) file is
     // rejected without loading it.
     let meta = fs::metadata(path).map_err(|e| ImportError::from_io(path.to_path_buf(), e))?;
     check_size(path, expected, meta.len())?;
-    let bytes = fs::read(path).map_err(|e| ImportError::from_io(path.to_path_buf(), e))?;
+    let bytes =
+        crate::atomic::read_input(path).map_err(|e| ImportError::from_io(path.to_path_buf(), e))?;
     // Again after reading: the file may have changed in between.
     check_size(path, expected, bytes.len() as u64)?;
     let values: Vec<f32> = bytes
@@ -306,7 +315,13 @@ fn read_f32_file(path: &Path, len: usize) -> Result<Vec<f32>, ImportError> {
 }
 
 fn read_matrix(path: &Path, rows: usize, cols: usize) -> Result<Array2<f32>, ImportError> {
-    let values = read_f32_file(path, rows * cols)?;
+    let len = rows
+        .checked_mul(cols)
+        .ok_or_else(|| ImportError::SizeOverflow {
+            path: path.to_path_buf(),
+            what: format!("a {rows} x {cols} matrix"),
+        })?;
+    let values = read_f32_file(path, len)?;
     // Cannot fail: read_f32_file returned exactly rows * cols values.
     Ok(Array2::from_shape_vec((rows, cols), values).unwrap_or_else(|_| unreachable!()))
 }
@@ -379,6 +394,7 @@ fn check_consistent(t: &PfnnTables) -> Result<(), String> {
 
 /// Helpers shared by the unit tests of this crate.
 #[cfg(test)]
+#[allow(clippy::arithmetic_side_effects)] // test fixtures, not file input
 pub(crate) mod fixtures {
     use super::*;
     use rand::{Rng, SeedableRng};
@@ -437,6 +453,7 @@ pub(crate) mod fixtures {
 }
 
 #[cfg(test)]
+#[allow(clippy::arithmetic_side_effects)] // test fixtures, not file input
 mod tests {
     use super::fixtures::*;
     use super::*;

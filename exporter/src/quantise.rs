@@ -508,16 +508,31 @@ pub fn gating_for(mode: GatingMode, experts: usize) -> Result<Gating, QuantError
 }
 
 /// The output stage: `(scale, offset)` per output, turning the last layer's
-/// integers at scale `targets` into model units.
+/// integers at scale `targets` into model units. Refuses a stage the
+/// runtime would refuse (`|scale| <= 2^24`, `|offset| <= 2^39`: outputs
+/// within 2^40 model units, `docs/blob-format.md`), naming the output.
 pub(crate) fn output_stage_records(
     targets: &[f64],
     ystd: &ndarray::Array1<f64>,
     ymean: &ndarray::Array1<f64>,
-) -> Vec<(f32, f32)> {
+) -> Result<Vec<(f32, f32)>, QuantError> {
+    use phasegate::blob::{MAX_OUTPUT_OFFSET, MAX_OUTPUT_SCALE};
     targets
         .iter()
         .zip(ystd.iter().zip(ymean))
-        .map(|(&t, (&sd, &m))| ((sd / t) as f32, m as f32))
+        .enumerate()
+        .map(|(i, (&t, (&sd, &m)))| {
+            let (scale, offset) = ((sd / t) as f32, m as f32);
+            if scale.abs() <= MAX_OUTPUT_SCALE && offset.abs() <= MAX_OUTPUT_OFFSET {
+                Ok((scale, offset))
+            } else {
+                Err(QuantError::Invalid(format!(
+                    "output {i}: Ystd {sd:e} / Ymean {m:e} give an output stage (scale {scale:e}, \
+                     offset {offset:e}) beyond the runtime's bounds (|scale| <= 2^24, \
+                     |offset| <= 2^39: every output within 2^40 model units)"
+                )))
+            }
+        })
         .collect()
 }
 
@@ -751,7 +766,7 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
         });
         layers.push(ql);
         if is_last {
-            output_stage = output_stage_records(&targets, &net.ystd, &net.ymean);
+            output_stage = output_stage_records(&targets, &net.ystd, &net.ymean)?;
         }
         in_scales = targets;
     }

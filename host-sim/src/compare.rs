@@ -1,6 +1,8 @@
 //! Error statistics between two output matrices, per PFNN output group,
 //! in output units.
 
+#![deny(clippy::arithmetic_side_effects)]
+
 use anyhow::{bail, Result};
 use serde::Serialize;
 
@@ -56,7 +58,7 @@ fn group_error(
             let d = if d.is_nan() { f64::INFINITY } else { d };
             max = max.max(d);
             sq += d * d;
-            n += 1;
+            n = n.saturating_add(1);
         }
     }
     GroupError {
@@ -76,6 +78,13 @@ pub fn compare(a: &Matrix<f32>, b: &Matrix<f32>) -> Result<Comparison> {
             a.cols,
             b.rows,
             b.cols
+        );
+    }
+    if a.rows == 0 || a.cols == 0 {
+        bail!(
+            "nothing to compare: both arrays are ({}, {})",
+            a.rows,
+            a.cols
         );
     }
     let groups = if a.cols == 311 {
@@ -114,6 +123,7 @@ impl Comparison {
 }
 
 #[cfg(test)]
+#[allow(clippy::arithmetic_side_effects)] // test fixtures, not file input
 mod tests {
     use super::*;
 

@@ -199,10 +199,10 @@ fn eval_cmd(
 ) -> Result<()> {
     let p = npy::read_vector_f32(phases)?;
     if let Some(model) = model {
-        let blob =
-            std::fs::read(&model).map_err(|e| anyhow!("cannot read {}: {e}", model.display()))?;
-        let m =
-            phasegate::Model::from_bytes(&blob).map_err(|e| anyhow!("{}: {e}", model.display()))?;
+        let blob = exporter::atomic::read_input(&model)
+            .map_err(|e| anyhow!("cannot read {}: {e}", model.display()))?;
+        let m = phasegate::Model::from_bytes(&blob)
+            .map_err(|e| anyhow!("{}: {}", model.display(), exporter::inspect::explain(&e)))?;
         let x = npy::read_matrix_f32(inputs, m.input_dim())?;
         let run = eval::run_fixed(&blob, &x, &p)?;
         if let Some(raw) = raw_out {
@@ -366,6 +366,7 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 fn main() -> ExitCode {
+    exporter::atomic::guard_inputs();
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -2,6 +2,8 @@
 //! matrices and vectors, int16 golden outputs). Writes go through a
 //! temporary file and a rename, so a failed run leaves nothing behind.
 
+#![deny(clippy::arithmetic_side_effects)]
+
 use anyhow::{bail, Context, Result};
 use npyz::WriterBuilder;
 use std::path::Path;
@@ -20,7 +22,7 @@ pub struct Matrix<T> {
 impl<T: Copy> Matrix<T> {
     /// Row `i`.
     pub fn row(&self, i: usize) -> &[T] {
-        &self.data[i * self.cols..(i + 1) * self.cols]
+        self.iter_rows().nth(i).unwrap_or(&[])
     }
 
     /// Iterator over rows.
@@ -30,33 +32,31 @@ impl<T: Copy> Matrix<T> {
 }
 
 fn read_any<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let npy = npyz::NpyFile::new(&bytes[..])
-        .with_context(|| format!("{} is not a .npy file", path.display()))?;
-    if npy.order() != npyz::Order::C {
-        bail!(
-            "{}: Fortran-ordered arrays are not supported; save with C order",
-            path.display()
-        );
-    }
-    let shape = npy.shape().to_vec();
-    let data = npy
+    let bytes = exporter::atomic::read_input(path)
+        .with_context(|| format!("cannot read {}", path.display()))?;
+    let what = || path.display().to_string();
+    let (header, data) = exporter::npz::parse_npy(&bytes).with_context(what)?;
+    let shape = header.shape().to_vec();
+    let descr = header.dtype().descr();
+    let data = npyz::NpyFile::with_header(header, data)
         .into_vec::<T>()
-        .with_context(|| format!("{}: wrong element type", path.display()))?;
+        .with_context(|| format!("{}: wrong element type {descr}", path.display()))?;
     Ok((shape, data))
 }
 
-/// Reads a 2-D matrix of `T`; with `cols`, its width must be that.
+/// Reads a 2-D matrix of `T`; with `cols`, its width must be that. The
+/// reader ([`exporter::npz::parse_npy`]) has checked that the data holds
+/// exactly `rows * cols` elements.
 fn read_matrix<T: npyz::Deserialize>(
     path: &Path,
     cols: Option<usize>,
     dtype: &str,
 ) -> Result<Matrix<T>> {
     let (shape, data) = read_any::<T>(path)?;
-    match shape[..] {
-        [r, c] if cols.is_none_or(|want| want as u64 == c) => Ok(Matrix {
-            rows: r as usize,
-            cols: c as usize,
+    match exporter::sizes::dims::<2>(&shape) {
+        Some([r, c]) if cols.is_none_or(|want| want == c) => Ok(Matrix {
+            rows: r,
+            cols: c,
             data,
         }),
         _ => {

@@ -3,7 +3,8 @@
 use crate::blob::records::stage_record;
 use crate::blob::{
     Framed, GateSource, Gating, Header, LayerDesc, ModelKind, Node, NodeOp, NodeTable, Nodes,
-    Requant, Section, Source, REQUANT_RECORD_LEN, STAGE_RECORD_LEN,
+    Requant, Section, Source, MAX_OUTPUT_OFFSET, MAX_OUTPUT_SCALE, REQUANT_RECORD_LEN,
+    STAGE_RECORD_LEN,
 };
 use crate::error::{Error, Result};
 use crate::fixed::gate::Gate;
@@ -160,8 +161,14 @@ impl<'a> Model<'a> {
                 }
             }
         }
-        self.validate_stage(h.input_stage, h.input_dim)?;
-        self.validate_stage(h.output_stage, h.output_dim)?;
+        // The input stage saturates to i16 whatever its values: finite is
+        // enough. The output stage must keep every output within 2^40.
+        self.validate_stage(h.input_stage, h.input_dim, [f32::MAX; 2])?;
+        self.validate_stage(
+            h.output_stage,
+            h.output_dim,
+            [MAX_OUTPUT_SCALE, MAX_OUTPUT_OFFSET],
+        )?;
         check_plan(h)?;
         if u64::from(h.macs_per_frame) != macs(h) {
             return Err(Error::HeaderInconsistent);
@@ -197,12 +204,14 @@ impl<'a> Model<'a> {
         Ok(())
     }
 
-    fn validate_stage(&self, s: Section, dim: u16) -> Result<()> {
+    /// A stage section of `dim` records whose two f32 have magnitudes at
+    /// most `max` (NaN fails every comparison).
+    fn validate_stage(&self, s: Section, dim: u16, max: [f32; 2]) -> Result<()> {
         check_section(self.payload, s, STAGE)?;
         if s.len as usize != usize::from(dim) * STAGE_RECORD_LEN {
             return Err(Error::SectionLength { layer: STAGE });
         }
-        if stage(self.payload, s).any(|(a, b)| !a.is_finite() || !b.is_finite()) {
+        if stage(self.payload, s).any(|(a, b)| !(a.abs() <= max[0] && b.abs() <= max[1])) {
             return Err(Error::UnsupportedParameter { layer: STAGE });
         }
         Ok(())

@@ -24,7 +24,15 @@ use crate::style::{Mix, Style, StyleId};
 /// - `S`: capacity of the adapter scratch buffer ([`Style::scratch_elements`]
 ///   is what a style needs; checked by [`Runtime::add_style`]); 0 for a
 ///   runtime without styles;
-/// - `N`: how many styles the bank holds; 0 for a runtime without styles.
+/// - `N`: how many styles the bank holds; 0 for a runtime without styles;
+///   at most 256, the number of [`StyleId`]s (a `u8`): a larger bank does
+///   not compile, so an id can never wrap and select another style.
+///
+/// ```compile_fail
+/// # static BLOB: &[u8] = include_bytes!("../../tests/golden/default/model.blob");
+/// let model = phasegate::Model::from_bytes(BLOB).unwrap();
+/// let rt = phasegate::Runtime::<'_, 374, 0, 257>::new(model); // error: N > 256
+/// ```
 ///
 /// Its size is `(A + S) * 2` bytes plus the model's header and the bank:
 /// put it in a `static` (or on the stack) and the whole inference needs no
@@ -85,6 +93,12 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
 
     /// Wraps a validated model; refuses it when its arena does not fit.
     pub fn new(model: Model<'a>) -> Result<Self> {
+        const {
+            assert!(
+                N <= 256,
+                "a style bank holds at most 256 styles (StyleId is a u8)"
+            )
+        };
         let needed = Self::required_elements(&model);
         if needed > A {
             return Err(buffer_error(needed, A));
@@ -146,9 +160,10 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
         if needed > S {
             return Err(buffer_error(needed, S));
         }
+        // Fits: the push below succeeds only while len < N <= 256.
         let id = StyleId(self.styles.len() as u8);
         self.styles.push(style).map_err(|_| Error::TooManyStyles {
-            capacity: N.min(256) as u32,
+            capacity: N as u32, // <= 256, checked at compile time in `new`
         })?;
         Ok(id)
     }

@@ -608,7 +608,9 @@ impl OutputHeader {
             input_crc: u32_at(file, 20),
             mode: Mode::from_u32(u32_at(file, 24))?,
         };
-        if u32_at(file, 16) as usize != h.record_len() {
+        // The width is bounded first (as the input header's is), so
+        // `record_len` cannot wrap on a 32-bit host.
+        if h.output_dim > 0x0100_0000 || u32_at(file, 16) as usize != h.record_len() {
             return Err(WireError::BadHeader);
         }
         Ok(h)
@@ -759,5 +761,29 @@ pub mod exit {
             NO_CONTROLLER => "controller mode needs the firmware's `controller` feature",
             _ => "unknown exit code",
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An output header whose width would make its record length wrap on a
+    /// 32-bit host is refused, not read with a wrapped length.
+    #[test]
+    fn output_header_width_is_bounded() {
+        let h = |output_dim| OutputHeader {
+            frames: 1,
+            output_dim,
+            input_crc: 0,
+            mode: Mode::Network,
+        };
+        let ok = h(311);
+        assert_eq!(OutputHeader::parse(&ok.encode()), Ok(ok));
+        let wide = h(0x2AAA_AAAB); // 8 + 6 * w wraps to 10 in 32 bits
+        assert_eq!(
+            OutputHeader::parse(&wide.encode()),
+            Err(WireError::BadHeader)
+        );
     }
 }

@@ -989,7 +989,8 @@ mod tests {
                     ("X", vec![0, 3], Vec::new()),
                     ("phase", vec![0], Vec::new()),
                 ],
-                "X has no rows",
+                // Refused by the reader: no input array may be empty.
+                "array X: shape [0, 3] has no elements",
             ),
             (
                 vec![("X", vec![4, 3], nan_x), ("phase", vec![4], ph.clone())],

@@ -30,6 +30,8 @@
 //! Arrays may be float32 or float64 (`.safetensors`: F32, F64, F16, BF16),
 //! C order. Every value must be finite.
 
+#![deny(clippy::arithmetic_side_effects)]
+
 use anyhow::{anyhow, bail, Context, Result};
 use half::{bf16, f16};
 use ndarray::{Array1, Array2};
@@ -43,7 +45,8 @@ use crate::npz::{read_npz, NpArray};
 
 /// Reads every float array of a `.safetensors` file.
 pub fn read_safetensors(path: &Path) -> Result<BTreeMap<String, NpArray>> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let bytes = crate::atomic::read_input(path)
+        .with_context(|| format!("cannot read {}", path.display()))?;
     parse_safetensors(&bytes).with_context(|| format!("{}", path.display()))
 }
 
@@ -73,12 +76,14 @@ pub fn parse_safetensors(bytes: &[u8]) -> Result<BTreeMap<String, NpArray>> {
         if let Some(k) = values.iter().position(|v| !v.is_finite()) {
             bail!("tensor {name} has a non-finite value at index {k}");
         }
+        let shape = view
+            .shape()
+            .iter()
+            .map(|&d| u64::try_from(d))
+            .collect::<Result<Vec<u64>, _>>()?;
         out.insert(
-            name,
-            NpArray {
-                shape: view.shape().iter().map(|&d| d as u64).collect(),
-                data: values,
-            },
+            name.clone(),
+            NpArray::new(shape, values).with_context(|| format!("tensor {name}"))?,
         );
     }
     Ok(out)
@@ -126,12 +131,13 @@ pub fn read_arrays(path: &Path) -> Result<BTreeMap<String, NpArray>> {
 }
 
 fn matrix(a: &NpArray, name: &str) -> Result<Array2<f64>> {
-    match a.shape[..] {
-        [r, c] => Ok(Array2::from_shape_vec(
-            (r as usize, c as usize),
-            a.data.clone(),
-        )?),
-        _ => bail!("{name} has shape {:?}, expected 2 dimensions", a.shape),
+    match crate::sizes::dims::<2>(&a.shape) {
+        Some([r, c]) => Array2::from_shape_vec((r, c), a.data.clone())
+            .map_err(|e| anyhow!("array {name} of shape {:?}: {e}", a.shape)),
+        None => bail!(
+            "array {name} has shape {:?}, expected 2 dimensions",
+            a.shape
+        ),
     }
 }
 
@@ -154,17 +160,22 @@ fn rows(m: &Array2<f64>) -> Vec<Array1<f64>> {
 }
 
 fn dense(w: &NpArray, name: &str) -> Result<Vec<Array2<f64>>> {
-    let [k, r, c] = w.shape[..] else {
-        bail!("{name} has shape {:?}, expected (K, out, in)", w.shape);
+    let Some([k, r, c]) = crate::sizes::dims::<3>(&w.shape) else {
+        bail!(
+            "array {name} has shape {:?}, expected (K, out, in)",
+            w.shape
+        );
     };
-    let (k, r, c) = (k as usize, r as usize, c as usize);
-    (0..k)
-        .map(|e| {
-            Ok(Array2::from_shape_vec(
-                (r, c),
-                w.data[e * r * c..(e + 1) * r * c].to_vec(),
-            )?)
-        })
+    let per = crate::sizes::mul(r, c, name)?;
+    if k == 0 || per == 0 || crate::sizes::element_count(&w.shape) != Some(w.data.len()) {
+        bail!(
+            "array {name} of shape {:?} is empty or does not hold its elements",
+            w.shape
+        );
+    }
+    w.data
+        .chunks_exact(per)
+        .map(|ws| Ok(Array2::from_shape_vec((r, c), ws.to_vec())?))
         .collect()
 }
 
@@ -418,6 +429,7 @@ pub fn write_adapter(adapter: &Adapter, path: &Path) -> Result<()> {
 }
 
 #[cfg(test)]
+#[allow(clippy::arithmetic_side_effects)] // test fixtures, not file input
 mod tests {
     use super::*;
 

@@ -21,6 +21,8 @@
 //! }
 //! ```
 
+#![deny(clippy::arithmetic_side_effects)]
+
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -139,7 +141,7 @@ fn parse_slice(text: &str, names: &BTreeMap<&str, (u8, usize)>, input_dim: usize
     Ok(Slice {
         source,
         start: u16_of(a)?,
-        len: u16_of(b - a)?,
+        len: u16_of(b.saturating_sub(a))?, // a < b above
     })
 }
 
@@ -163,9 +165,12 @@ fn dense(
     let w = arrays
         .get(weight)
         .ok_or_else(|| anyhow!("missing array {weight:?}"))?;
-    let (k, out, inp) = match w.shape[..] {
-        [o, i] => (1, o as usize, i as usize),
-        [k, o, i] => (k as usize, o as usize, i as usize),
+    let (k, out, inp) = match (
+        crate::sizes::dims::<2>(&w.shape),
+        crate::sizes::dims::<3>(&w.shape),
+    ) {
+        (Some([o, i]), _) => (1, o, i),
+        (_, Some([k, o, i])) => (k, o, i),
         _ => bail!(
             "array {weight:?} has shape {:?}, expected (out, in) or (K, out, in)",
             w.shape
@@ -174,29 +179,41 @@ fn dense(
     if inp != in_dim {
         bail!("array {weight:?} has {inp} inputs, but the node's input slices give {in_dim}");
     }
-    if k == 0 || out == 0 {
+    let (per, rows) = (
+        crate::sizes::mul(out, inp, weight)?,
+        crate::sizes::mul(k, out, weight)?,
+    );
+    if k == 0 || per == 0 {
         bail!("array {weight:?} is empty");
     }
+    if crate::sizes::element_count(&w.shape) != Some(w.data.len()) {
+        bail!(
+            "array {weight:?} does not hold the elements of its shape {:?}",
+            w.shape
+        );
+    }
     let b = match arrays.get(bias) {
-        None => vec![0.0; k * out],
-        Some(b) if b.data.len() == k * out => b.data.clone(),
+        None => vec![0.0; rows],
+        Some(b) if b.data.len() == rows => b.data.clone(),
         Some(b) if b.data.len() == out => b.data.repeat(k),
         Some(b) => bail!(
             "array {bias:?} has shape {:?}, expected ({k}, {out}) or ({out})",
             b.shape
         ),
     };
-    if w.data.iter().chain(&b).any(|v| !v.is_finite()) {
-        bail!("arrays {weight:?} / {bias:?} hold NaN or infinite values");
+    if let Some(i) = w.data.iter().position(|v| !v.is_finite()) {
+        bail!("array {weight:?} has a non-finite value at index {i}");
+    }
+    if let Some(i) = b.iter().position(|v| !v.is_finite()) {
+        bail!("array {bias:?} has a non-finite value at index {i}");
     }
     Ok(ExpertLayer {
-        w: (0..k)
-            .map(|e| {
-                Array2::from_shape_vec((out, inp), w.data[e * out * inp..][..out * inp].to_vec())
-            })
+        w: w.data
+            .chunks_exact(per)
+            .map(|ws| Array2::from_shape_vec((out, inp), ws.to_vec()))
             .collect::<Result<_, _>>()?,
-        b: (0..k)
-            .map(|e| Array1::from(b[e * out..][..out].to_vec()))
+        b: b.chunks_exact(out)
+            .map(|bs| Array1::from(bs.to_vec()))
             .collect(),
     })
 }
@@ -298,7 +315,7 @@ pub fn net_from_file(file: &GraphFile, arrays: &BTreeMap<String, NpArray>) -> Re
                 layers.push(NetLayer::Dense(layer));
                 (
                     GraphOp::Layer {
-                        layer: layers.len() - 1,
+                        layer: layers.len().saturating_sub(1), // just pushed
                         elu,
                     },
                     out,
@@ -360,8 +377,10 @@ pub fn net_from_file(file: &GraphFile, arrays: &BTreeMap<String, NpArray>) -> Re
 /// Reads a graph description (`.json`) and its weights (`.npz` or
 /// `.safetensors`).
 pub fn read_graph(json: &Path, weights: &Path) -> Result<Net> {
-    let text =
-        std::fs::read_to_string(json).with_context(|| format!("cannot read {}", json.display()))?;
+    let bytes = crate::atomic::read_input(json)
+        .with_context(|| format!("cannot read {}", json.display()))?;
+    let text = String::from_utf8(bytes)
+        .with_context(|| format!("{}: not a graph description (not UTF-8)", json.display()))?;
     let file: GraphFile = serde_json::from_str(&text)
         .with_context(|| format!("{}: not a graph description", json.display()))?;
     let arrays = crate::cp::import::read_arrays(weights)?;
@@ -376,7 +395,11 @@ fn slice_text(g: &Graph, s: &Slice, width: usize) -> String {
     if s.start == 0 && usize::from(s.len) == width {
         name.to_string()
     } else {
-        format!("{name}[{}..{}]", s.start, s.start + s.len)
+        format!(
+            "{name}[{}..{}]",
+            s.start,
+            u32::from(s.start).saturating_add(u32::from(s.len))
+        )
     }
 }
 

@@ -221,7 +221,7 @@ pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quant
                 .zip(&input_scales)
                 .map(|((&m, &sd), &u)| (m as f32, (u / sd) as f32))
                 .collect(),
-            output_stage: output_stage_records(out_scales, &net.ystd, &net.ymean),
+            output_stage: output_stage_records(out_scales, &net.ystd, &net.ymean)?,
             layers,
             wiring: QWiring::Graph {
                 nodes,

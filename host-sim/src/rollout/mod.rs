@@ -93,8 +93,8 @@ pub fn rollout_from_args(args: &RolloutArgs) -> Result<(Rollout, String)> {
         bail!("--frames must be at least 1");
     }
     if let Some(model) = &args.model {
-        let blob =
-            std::fs::read(model).with_context(|| format!("cannot read {}", model.display()))?;
+        let blob = exporter::atomic::read_input(model)
+            .with_context(|| format!("cannot read {}", model.display()))?;
         let mut ctl = FixedController::new(&blob, format!("fixed point ({})", model.display()))
             .map_err(|e| anyhow!("{}: {e}", model.display()))?;
         let ram = ctl.device_ram_bytes();

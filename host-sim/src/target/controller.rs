@@ -401,7 +401,7 @@ pub struct ControllerArgs<'a> {
 /// Runs the controller on the firmware and on the host; does not print or
 /// judge bit-exactness (see [`ControllerReport::bit_exact`]).
 pub fn execute(args: &ControllerArgs<'_>) -> Result<ControllerReport> {
-    let blob = std::fs::read(args.model)
+    let blob = exporter::atomic::read_input(args.model)
         .with_context(|| format!("cannot read the model blob {}", args.model.display()))?;
     let model = Model::from_bytes(&blob)
         .with_context(|| format!("{} is not a valid model blob", args.model.display()))?;

@@ -273,7 +273,7 @@ pub(super) fn records_and_trailer<'f>(
 
 /// Does the work of [`run_target`] without printing or judging the result.
 pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
-    let blob = std::fs::read(&args.model)
+    let blob = exporter::atomic::read_input(&args.model)
         .with_context(|| format!("cannot read the model blob {}", args.model.display()))?;
     let model = Model::from_bytes(&blob)
         .with_context(|| format!("{} is not a valid model blob", args.model.display()))?;

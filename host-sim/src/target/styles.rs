@@ -60,7 +60,7 @@ impl StyleFile {
     /// Reads and validates a style blob (on its own; whether it fits the
     /// base is the runtime's `add_style`'s business).
     pub fn read(path: &Path) -> Result<StyleFile> {
-        let bytes = std::fs::read(path)
+        let bytes = exporter::atomic::read_input(path)
             .with_context(|| format!("cannot read the style blob {}", path.display()))?;
         StyleFile::from_bytes(path, bytes)
     }

@@ -1,6 +1,8 @@
 //! Preamble, header CRC, padding and payload CRC: everything up to the
 //! point where the payload's bytes can be trusted.
 
+#![deny(clippy::arithmetic_side_effects)]
+
 use crate::blob::{Header, NodeTable};
 use crate::error::{Error, Result};
 
@@ -80,6 +82,8 @@ fn read_preamble(bytes: &[u8]) -> Result<Preamble> {
 /// payload starts.
 fn read_header(bytes: &[u8]) -> Result<(Header<NodeTable<'_>>, usize)> {
     let pre = read_preamble(bytes)?;
+    // Cannot overflow: 12 + a u16.
+    #[allow(clippy::arithmetic_side_effects)]
     let header_end = PREAMBLE_LEN + pre.header_len;
     let header_bytes = bytes
         .get(PREAMBLE_LEN..header_end)

@@ -5,6 +5,8 @@
 //! Enums only ever grow at the end, so a newer minor revision of the format
 //! still decodes old blobs (postcard encodes variants as varint indices).
 
+#![deny(clippy::arithmetic_side_effects)]
+
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -265,6 +267,7 @@ pub struct Span {
 
 impl Span {
     /// One past the last element.
+    #[allow(clippy::arithmetic_side_effects)] // two u16 in a u32: cannot overflow
     pub fn end(&self) -> u32 {
         u32::from(self.offset) + u32::from(self.len)
     }
@@ -461,6 +464,8 @@ impl Nodes for NodeTable<'_> {
             return None;
         }
         let from = usize::from(*self.starts.get(i)?);
+        // Cannot overflow: i < count <= MAX_NODES.
+        #[allow(clippy::arithmetic_side_effects)]
         let to = usize::from(*self.starts.get(i + 1)?);
         postcard::from_bytes(self.bytes.get(from..to)?).ok()
     }
@@ -510,11 +515,13 @@ impl<'a> Header<NodeTable<'a>> {
         for i in 1..=count {
             rest = postcard::take_from_bytes::<Node>(rest).map_err(bad)?.1;
             if let Some(s) = starts.get_mut(i) {
-                *s = u16::try_from(table.len() - rest.len()).map_err(|_| Error::HeaderMalformed)?;
+                *s = u16::try_from(table.len().saturating_sub(rest.len()))
+                    .map_err(|_| Error::HeaderMalformed)?;
             }
         }
+        // `rest` is a suffix of `table`: the difference never saturates.
         let table = table
-            .get(..table.len() - rest.len())
+            .get(..table.len().saturating_sub(rest.len()))
             .ok_or(Error::HeaderMalformed)?;
         let (suffix, rest) = postcard::take_from_bytes::<Suffix>(rest).map_err(bad)?;
         if !rest.is_empty() {
@@ -574,6 +581,7 @@ impl<'a> Header<NodeTable<'a>> {
 }
 
 #[cfg(test)]
+#[allow(clippy::arithmetic_side_effects)] // test fixtures, not blob input
 mod tests {
     use super::*;
 

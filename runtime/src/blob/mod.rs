@@ -22,4 +22,6 @@ pub use header::{
     NodeTable, NodeVec, Nodes, Section, Slice, SoftmaxDesc, Source, Span, WeightFormat, MAX_NODES,
     MAX_NODE_INPUTS, MAX_STYLE_NAME,
 };
-pub use records::{Requant, REQUANT_RECORD_LEN, STAGE_RECORD_LEN};
+pub use records::{
+    Requant, MAX_OUTPUT_OFFSET, MAX_OUTPUT_SCALE, REQUANT_RECORD_LEN, STAGE_RECORD_LEN,
+};

@@ -1,9 +1,25 @@
 //! Fixed-size little-endian records inside payload sections.
 
+#![deny(clippy::arithmetic_side_effects)]
+
 /// Bytes of one requantisation record.
 pub const REQUANT_RECORD_LEN: usize = 8;
 /// Bytes of one input- or output-stage record (two f32).
 pub const STAGE_RECORD_LEN: usize = 8;
+
+/// Largest output-stage `|scale|` the loader accepts: 2^24.
+///
+/// With [`MAX_OUTPUT_OFFSET`] it bounds every output of a loaded model:
+/// the output stage maps an i16 `q` (`|q| <= 2^15`) to
+/// `y = q * scale + offset`, so `|y| <= 2^15 * 2^24 + 2^39 = 2^40`
+/// (about 1.1e12 model units). An output that could exceed 2^40 is
+/// *absurd* (no motion model has such units) and a stage that allows one
+/// is refused (`UnsupportedParameter { layer: 255 }`): a loaded model's
+/// outputs are always finite.
+pub const MAX_OUTPUT_SCALE: f32 = 16_777_216.0;
+/// Largest output-stage `|offset|` the loader accepts: 2^39 (see
+/// [`MAX_OUTPUT_SCALE`]).
+pub const MAX_OUTPUT_OFFSET: f32 = 549_755_813_888.0;
 
 /// How one output row turns its blended accumulator into an i16:
 /// `y = sat16(round(sat32(round(acc >> pre)) * multiplier >> post))`,
@@ -74,6 +90,7 @@ pub(crate) fn bias_at(section: &[u8], width: usize, i: usize) -> Option<i64> {
 }
 
 #[cfg(test)]
+#[allow(clippy::arithmetic_side_effects)] // test fixtures, not blob input
 mod tests {
     use super::*;
 
