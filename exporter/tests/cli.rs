@@ -651,6 +651,9 @@ fn inspect_names_the_version_found_and_the_version_supported() {
             "{file}: {err}"
         );
     }
-    let o = exporter(&["inspect", fixtures.join("example-v2.blob").to_str().unwrap()]);
+    let o = exporter(&[
+        "inspect",
+        fixtures.join("example-v2.blob").to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }

@@ -150,11 +150,11 @@ pub fn mutate_chain(data: &[u8], choice: u64, mutate: &mut dyn FnMut(&mut Vec<u8
     }
     *blob = edited;
     // One mutation in eight is left unsealed: the CRC checks get their share.
-    if (choice >> 16) % 8 == 0 {
+    if (choice >> 16) & 7 == 0 {
         return blobs.concat();
     }
     let base = reseal(&blobs[0], None);
-    let bind = (choice >> 24) % 8 != 0;
+    let bind = (choice >> 24) & 7 != 0;
     let crc = if bind { binding_crc(&base) } else { None };
     let mut out = base;
     for b in &blobs[1..] {
@@ -263,11 +263,20 @@ pub fn exercise_model(bytes: &[u8]) -> usize {
 /// are not there: none, each one, each ordered pair at weights 0, 1/2, 1
 /// and the largest blend weight.
 pub fn every_mix(styles: usize) -> Vec<Mix> {
-    let mut v = vec![Mix::Base, Mix::One(StyleId(styles as u8)), Mix::One(StyleId(255))];
+    let mut v = vec![
+        Mix::Base,
+        Mix::One(StyleId(styles as u8)),
+        Mix::One(StyleId(255)),
+    ];
     for a in 0..styles as u8 {
         v.push(Mix::One(StyleId(a)));
         for b in 0..=styles as u8 {
-            for w in [BlendWeight::ZERO, BlendWeight::from_num(0.5), BlendWeight::ONE, BlendWeight::MAX] {
+            for w in [
+                BlendWeight::ZERO,
+                BlendWeight::from_num(0.5),
+                BlendWeight::ONE,
+                BlendWeight::MAX,
+            ] {
                 v.push(Mix::Blend {
                     from: StyleId(a),
                     to: StyleId(b),
@@ -297,7 +306,11 @@ pub fn exercise_styled(bytes: &[u8]) -> usize {
     for s in styles {
         let _ = Style::from_bytes(s);
         if let Ok(style) = Style::from_region(s) {
-            let _ = (style.name(), style.macs_per_frame(), style.scratch_elements());
+            let _ = (
+                style.name(),
+                style.macs_per_frame(),
+                style.scratch_elements(),
+            );
             attached += usize::from(rt.add_style(style).is_ok());
         }
     }
@@ -311,7 +324,11 @@ pub fn exercise_styled(bytes: &[u8]) -> usize {
                 usize::from(from.0) < attached && usize::from(to.0) < attached
             }
         };
-        assert_eq!(set.is_ok(), valid, "{mix:?} with {attached} styles: {set:?}");
+        assert_eq!(
+            set.is_ok(),
+            valid,
+            "{mix:?} with {attached} styles: {set:?}"
+        );
         if set.is_ok() {
             frames += run_frames(&mut rt, &[0, 1 << 31, u32::MAX]);
         }
@@ -426,7 +443,8 @@ pub fn exercise_controller(data: &[u8]) -> usize {
     let model = Model::from_bytes(host_sim::default_model::BLOB).expect("default model");
     let mut rt = Runtime::<1024, 256, 2>::new(model).expect("fits");
     for s in styles {
-        rt.add_style(Style::from_bytes(s).expect("style")).expect("bound");
+        rt.add_style(Style::from_bytes(s).expect("style"))
+            .expect("bound");
     }
     let Ok(mut state) = Locomotion::<f32>::new(&rt) else {
         panic!("locomotion state");
@@ -454,19 +472,17 @@ pub fn exercise_controller(data: &[u8]) -> usize {
 // ---------------------------------------------------------------------------
 // The host tools' file parsers.
 
-/// A scratch directory for parsers that only read paths.
-fn scratch_dir() -> &'static Path {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let base = if Path::new("/dev/shm").is_dir() {
-            PathBuf::from("/dev/shm")
-        } else {
-            std::env::temp_dir()
+/// A scratch directory for parsers that only read paths: one per thread
+/// (the proptest equivalents run in parallel), removed when the thread ends.
+fn scratch_dir() -> PathBuf {
+    thread_local! {
+        static DIR: tempfile::TempDir = {
+            let shm = Path::new("/dev/shm");
+            let b = tempfile::Builder::new().prefix("phasegate-fuzz-").tempdir_in(shm);
+            b.or_else(|_| tempfile::tempdir()).expect("scratch dir")
         };
-        let d = base.join(format!("phasegate-fuzz-{}", std::process::id()));
-        std::fs::create_dir_all(&d).expect("scratch dir");
-        d
-    })
+    }
+    DIR.with(|d| d.path().to_path_buf())
 }
 
 fn write(name: &str, bytes: &[u8]) -> PathBuf {
@@ -608,13 +624,17 @@ pub fn exercise_pfnn_dir(bytes: &[u8]) -> usize {
 
 /// A committed golden file, by its path under `tests/golden/`.
 pub fn golden(rel: &str) -> Vec<u8> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("golden").join(rel);
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("golden")
+        .join(rel);
     std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
 }
 
 /// A committed blob fixture, by its name under `tests/fixtures/`.
 pub fn fixture(name: &str) -> Vec<u8> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name);
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join(name);
     std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
 }
 
@@ -633,7 +653,11 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
     // Models: the format example (dense, one neuron), a small dense PFNN,
     // a small CP + diagonal network, the golden CP/diagonal and softmax
     // graph blobs.
-    v.push(("model", "example-v2.blob".into(), fixture("example-v2.blob")));
+    v.push((
+        "model",
+        "example-v2.blob".into(),
+        fixture("example-v2.blob"),
+    ));
     let pfnn = synthetic::pfnn_base(4, 6, 8, 5);
     let base = export(&pfnn);
     v.push(("model", "dense-small.blob".into(), base.clone()));
@@ -642,11 +666,23 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
         "cp-diagonal-small.blob".into(),
         export(&synthetic::cp_net(3, 6, 8, 5, 3)),
     ));
-    v.push(("model", "cp-diagonal.blob".into(), golden("cp-diagonal/model.blob")));
-    v.push(("model", "softmax-graph.blob".into(), golden("softmax-graph/model.blob")));
+    v.push((
+        "model",
+        "cp-diagonal.blob".into(),
+        golden("cp-diagonal/model.blob"),
+    ));
+    v.push((
+        "model",
+        "softmax-graph.blob".into(),
+        golden("softmax-graph/model.blob"),
+    ));
     if include_large {
         v.push(("model", "default.blob".into(), golden("default/model.blob")));
-        v.push(("model", "dense-int16.blob".into(), golden("dense-int16/model.blob")));
+        v.push((
+            "model",
+            "dense-int16.blob".into(),
+            golden("dense-int16/model.blob"),
+        ));
     }
     // Styles: the small base followed by a CP, a diagonal and a full
     // adapter; and each alone after it.
@@ -658,9 +694,17 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
             synthetic::style_blob(&base, &pfnn, &ad, form, None).unwrap()
         })
         .collect();
-    v.push(("styled", "base+3.bin".into(), [base.clone(), styles.concat()].concat()));
+    v.push((
+        "styled",
+        "base+3.bin".into(),
+        [base.clone(), styles.concat()].concat(),
+    ));
     for (s, form) in styles.iter().zip(["cp", "diagonal", "full"]) {
-        v.push(("styled", format!("base+{form}.bin"), [base.clone(), s.clone()].concat()));
+        v.push((
+            "styled",
+            format!("base+{form}.bin"),
+            [base.clone(), s.clone()].concat(),
+        ));
         v.push(("model", format!("style-{form}.blob"), s.clone()));
     }
     if include_large {
@@ -699,7 +743,11 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
     v.push(("weights", "small.npz".into(), std::fs::read(&npz).unwrap()));
     let st = dir.path().join("x.safetensors");
     exporter::cp::import::write_safetensors(&st, &arrays).unwrap();
-    v.push(("weights", "small.safetensors".into(), std::fs::read(&st).unwrap()));
+    v.push((
+        "weights",
+        "small.safetensors".into(),
+        std::fs::read(&st).unwrap(),
+    ));
     let npy = dir.path().join("x.npy");
     let m = host_sim::npy::Matrix {
         rows: 2,
@@ -714,30 +762,62 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
         data: vec![1i16, -2, 3],
     };
     host_sim::npy::write_matrix(&npy, &q).unwrap();
-    v.push(("weights", "matrix-i16.npy".into(), std::fs::read(&npy).unwrap()));
+    v.push((
+        "weights",
+        "matrix-i16.npy".into(),
+        std::fs::read(&npy).unwrap(),
+    ));
     host_sim::npy::write_vector(&npy, &[0.5f32, -0.25]).unwrap();
     v.push(("weights", "vector.npy".into(), std::fs::read(&npy).unwrap()));
     let pfnn_npz = dir.path().join("pfnn.npz");
     exporter::npz::pfnn_to_npz(&synthetic::pfnn_base(4, 3, 4, 2), &pfnn_npz).unwrap();
-    v.push(("weights", "pfnn-tiny.npz".into(), std::fs::read(&pfnn_npz).unwrap()));
+    v.push((
+        "weights",
+        "pfnn-tiny.npz".into(),
+        std::fs::read(&pfnn_npz).unwrap(),
+    ));
     if include_large {
-        v.push(("weights", "cp-diagonal.npz".into(), golden("cp-diagonal/model.npz")));
-        v.push(("weights", "phases.npy".into(), golden("cp-diagonal/phases.npy")));
+        v.push((
+            "weights",
+            "cp-diagonal.npz".into(),
+            golden("cp-diagonal/model.npz"),
+        ));
+        v.push((
+            "weights",
+            "phases.npy".into(),
+            golden("cp-diagonal/phases.npy"),
+        ));
     }
     // Configs: the golden graph description and the golden script.
-    v.push(("configs", "graph.json".into(), golden("softmax-graph/model.json")));
-    v.push(("configs", "script.json".into(), golden("controller/script.json")));
+    v.push((
+        "configs",
+        "graph.json".into(),
+        golden("softmax-graph/model.json"),
+    ));
+    v.push((
+        "configs",
+        "script.json".into(),
+        golden("controller/script.json"),
+    ));
     // A PFNN directory: 3 inputs, 4 hidden, 2 outputs, 2 tables.
     let f = |n: usize, s: f32| -> Vec<u8> {
-        (0..n).flat_map(|i| (s + i as f32 * 0.125).to_le_bytes()).collect()
+        (0..n)
+            .flat_map(|i| (s + i as f32 * 0.125).to_le_bytes())
+            .collect()
     };
     let (i, h, o) = (3, 4, 2);
     let mut files = vec![f(i, 0.0), f(i, 1.0), f(o, 0.0), f(o, 1.0)];
     for t in 0..2 {
         let s = t as f32 * 0.5;
-        files.extend([f(h * i, s), f(h * h, s), f(o * h, s), f(h, s), f(h, s), f(o, s)]);
+        files.extend([
+            f(h * i, s),
+            f(h * h, s),
+            f(o * h, s),
+            f(h, s),
+            f(h, s),
+            f(o, s),
+        ]);
     }
     v.push(("pfnn_dir", "tiny-2-tables.bin".into(), pack_files(&files)));
     v
 }
-

@@ -56,7 +56,10 @@ fn check_all_bytes(name: &str, blob: &[u8], load: fn(&[u8], bool) -> Result<(), 
             let want = expected(blob, &d, pos);
             for exact in [true, false] {
                 let got = load(&d, exact).expect_err("a flipped byte loaded");
-                assert_eq!(got, want, "{name}: byte {pos} ^ {mask:#04x} (exact {exact})");
+                assert_eq!(
+                    got, want,
+                    "{name}: byte {pos} ^ {mask:#04x} (exact {exact})"
+                );
             }
             n += 1;
         }
@@ -137,11 +140,29 @@ fn every_byte_of_an_old_version_blob_gives_the_version_error() {
                     assert_eq!(Model::from_bytes(&d).unwrap_err(), Error::HeaderCorrupt);
                     continue;
                 }
-                assert_eq!(Model::from_bytes(&d).unwrap_err(), want, "{file} byte {pos}");
-                assert_eq!(Model::from_region(&d).unwrap_err(), want, "{file} byte {pos}");
-                assert_eq!(Style::from_bytes(&d).unwrap_err(), want, "{file} byte {pos}");
+                assert_eq!(
+                    Model::from_bytes(&d).unwrap_err(),
+                    want,
+                    "{file} byte {pos}"
+                );
+                assert_eq!(
+                    Model::from_region(&d).unwrap_err(),
+                    want,
+                    "{file} byte {pos}"
+                );
+                assert_eq!(
+                    Style::from_bytes(&d).unwrap_err(),
+                    want,
+                    "{file} byte {pos}"
+                );
                 if pos >= 6 {
-                    assert_eq!(want, Error::UnsupportedVersion { found: version, supported: 2 });
+                    assert_eq!(
+                        want,
+                        Error::UnsupportedVersion {
+                            found: version,
+                            supported: 2
+                        }
+                    );
                 }
             }
         }

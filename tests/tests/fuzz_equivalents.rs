@@ -108,7 +108,10 @@ fn runner(cases: u32, seed: u8) -> TestRunner {
         failure_persistence: None,
         ..Config::default()
     };
-    TestRunner::new_with_rng(config, TestRng::from_seed(RngAlgorithm::ChaCha, &[seed; 32]))
+    TestRunner::new_with_rng(
+        config,
+        TestRng::from_seed(RngAlgorithm::ChaCha, &[seed; 32]),
+    )
 }
 
 /// The structure-aware cases of a blob target: a seed, one or two rounds
@@ -118,7 +121,10 @@ fn blob_cases(target: &str, cases: u32, seed: u8, exercise: fn(&[u8]) -> usize) 
     let n = corpus.len();
     let strategy = (
         0..n,
-        proptest::collection::vec((any::<u64>(), proptest::collection::vec(edit(), 1..6)), 1..3),
+        proptest::collection::vec(
+            (any::<u64>(), proptest::collection::vec(edit(), 1..6)),
+            1..3,
+        ),
     );
     let frames = std::cell::Cell::new(0usize);
     runner(cases, seed)
@@ -152,40 +158,40 @@ fn byte_cases(target: &str, cases: u32, seed: u8, exercise: fn(&[u8]) -> usize) 
 
 #[test]
 fn model_target_equivalent() {
-    blob_cases("model", 600, 1, fuzz::exercise_model);
+    blob_cases("model", 2000, 1, fuzz::exercise_model);
 }
 
 #[test]
 fn styled_target_equivalent() {
-    blob_cases("styled", 150, 2, fuzz::exercise_styled);
+    blob_cases("styled", 400, 2, fuzz::exercise_styled);
 }
 
 #[test]
 fn controller_target_equivalent() {
     // Arbitrary command bytes, and the seeds edited.
     let strategy = proptest::collection::vec(any::<u8>(), 0..400);
-    runner(60, 3)
+    runner(150, 3)
         .run(&strategy, |bytes| {
             fuzz::exercise_controller(&bytes);
             Ok(())
         })
         .unwrap();
-    byte_cases("controller", 40, 4, fuzz::exercise_controller);
+    byte_cases("controller", 100, 4, fuzz::exercise_controller);
 }
 
 #[test]
 fn weights_target_equivalent() {
-    byte_cases("weights", 600, 5, fuzz::exercise_weights);
+    byte_cases("weights", 2000, 5, fuzz::exercise_weights);
 }
 
 #[test]
 fn configs_target_equivalent() {
-    byte_cases("configs", 600, 6, fuzz::exercise_configs);
+    byte_cases("configs", 2000, 6, fuzz::exercise_configs);
 }
 
 #[test]
 fn pfnn_dir_target_equivalent() {
-    byte_cases("pfnn_dir", 400, 7, fuzz::exercise_pfnn_dir);
+    byte_cases("pfnn_dir", 1000, 7, fuzz::exercise_pfnn_dir);
 }
 
 /// The seeds themselves: each is valid for its target (a model loads and
