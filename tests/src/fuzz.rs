@@ -776,6 +776,53 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
         "pfnn-tiny.npz".into(),
         std::fs::read(&pfnn_npz).unwrap(),
     ));
+    // The hostile classes the parsers must refuse: shapes whose element
+    // count overflows, safetensors whose tensors overlap or whose shape
+    // claims far more than the data holds.
+    let npy_with_shape = |shape: &str| -> Vec<u8> {
+        let mut h = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}");
+        while (10 + h.len() + 1) % 64 != 0 {
+            h.push(' ');
+        }
+        h.push('\n');
+        let mut out = b"\x93NUMPY\x01\x00".to_vec();
+        out.extend((h.len() as u16).to_le_bytes());
+        out.extend(h.as_bytes());
+        out.extend([0u8; 16]);
+        out
+    };
+    v.push((
+        "weights",
+        "hostile-shape-overflow.npy".into(),
+        npy_with_shape("(4294967296, 4294967296, 16)"),
+    ));
+    v.push((
+        "weights",
+        "hostile-shape-huge.npy".into(),
+        npy_with_shape("(1099511627776, 1)"),
+    ));
+    let safetensors = |header: &str, data: usize| -> Vec<u8> {
+        let mut out = (header.len() as u64).to_le_bytes().to_vec();
+        out.extend(header.as_bytes());
+        out.extend(vec![0u8; data]);
+        out
+    };
+    v.push((
+        "weights",
+        "hostile-overlap.safetensors".into(),
+        safetensors(
+            r#"{"a":{"dtype":"F32","shape":[2],"data_offsets":[0,8]},"b":{"dtype":"F32","shape":[2],"data_offsets":[0,8]}}"#,
+            8,
+        ),
+    ));
+    v.push((
+        "weights",
+        "hostile-shape.safetensors".into(),
+        safetensors(
+            r#"{"a":{"dtype":"F32","shape":[4611686018427387904,4],"data_offsets":[0,8]}}"#,
+            8,
+        ),
+    ));
     if include_large {
         v.push((
             "weights",
