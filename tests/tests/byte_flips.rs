@@ -49,11 +49,19 @@ fn expected(blob: &[u8], damaged: &[u8], pos: usize) -> Error {
 fn check_all_bytes(name: &str, blob: &[u8], load: fn(&[u8], bool) -> Result<(), Error>) -> usize {
     let mut rng = ChaCha8Rng::seed_from_u64(blob.len() as u64);
     let mut n = 0;
+    let mut classes = std::collections::BTreeMap::<String, usize>::new();
     for pos in 0..blob.len() {
         for mask in [0xffu8, 1 << rng.gen_range(0..8)] {
             let mut d = blob.to_vec();
             d[pos] ^= mask;
             let want = expected(blob, &d, pos);
+            let class = format!("{want:?}");
+            let class = class
+                .split([' ', '{'])
+                .next()
+                .unwrap_or_default()
+                .to_string();
+            *classes.entry(class).or_default() += 1;
             for exact in [true, false] {
                 let got = load(&d, exact).expect_err("a flipped byte loaded");
                 assert_eq!(
@@ -64,6 +72,8 @@ fn check_all_bytes(name: &str, blob: &[u8], load: fn(&[u8], bool) -> Result<(), 
             n += 1;
         }
     }
+    // For the record (`--nocapture`): the flips per error class.
+    println!("{name}: {} bytes, {n} flips, {classes:?}", blob.len());
     n
 }
 
