@@ -92,6 +92,7 @@ impl Frames {
 /// Reads an `.npy` array of `T`; returns its shape and data.
 pub fn read_npy<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    exporter::npz::check_npy_header(&bytes).with_context(|| format!("{}", path.display()))?;
     let npy = npyz::NpyFile::new(&bytes[..])
         .with_context(|| format!("{} is not an .npy file", path.display()))?;
     let shape = npy.shape().to_vec();
