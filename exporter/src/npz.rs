@@ -120,6 +120,7 @@ pub fn read_npz_from(
 /// wrapped), and exactly that many data bytes (fewer is a truncated file,
 /// more a damaged one). Errors do not name the file; callers add it.
 pub fn parse_npy(bytes: &[u8]) -> Result<(npyz::NpyHeader, &[u8])> {
+    check_npy_header(bytes)?;
     let mut rest = bytes;
     let header = npyz::NpyHeader::from_reader(&mut rest)
         .map_err(|e| anyhow!("not a .npy array (bad header: {e})"))?;
@@ -147,6 +148,48 @@ pub fn parse_npy(bytes: &[u8]) -> Result<(npyz::NpyHeader, &[u8])> {
         ),
         std::cmp::Ordering::Equal => Ok((header, rest)),
     }
+}
+
+/// Deepest bracket nesting accepted in an `.npy` header. A plain array's
+/// header (`{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }`)
+/// nests 2 deep; the header parser npyz uses (py_literal) takes time
+/// exponential in the depth (found by the `weights` fuzz target: a 228-byte
+/// `.npy` whose header opened 60 `{` did not parse in minutes).
+pub const MAX_NPY_HEADER_DEPTH: usize = 4;
+
+/// Refuses an `.npy` whose header nests brackets deeper than
+/// [`MAX_NPY_HEADER_DEPTH`], before npyz parses it. Bytes that are not an
+/// `.npy` pass (npyz refuses them).
+pub fn check_npy_header(bytes: &[u8]) -> Result<()> {
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+        return Ok(());
+    }
+    let (len, start): (usize, usize) = if bytes[6] == 1 {
+        (usize::from(u16::from_le_bytes([bytes[8], bytes[9]])), 10)
+    } else if bytes.len() >= 12 {
+        let n = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
+        (usize::try_from(n).unwrap_or(usize::MAX), 12)
+    } else {
+        return Ok(());
+    };
+    let header = &bytes[start..start.saturating_add(len).min(bytes.len())];
+    let (mut depth, mut deepest) = (0usize, 0usize);
+    for &b in header {
+        match b {
+            b'(' | b'[' | b'{' => {
+                depth = depth.saturating_add(1);
+                deepest = deepest.max(depth);
+            }
+            b')' | b']' | b'}' => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+    }
+    if deepest > MAX_NPY_HEADER_DEPTH {
+        bail!(
+            "the .npy header nests brackets {deepest} deep (at most {MAX_NPY_HEADER_DEPTH} accepted)"
+        );
+    }
+    Ok(())
 }
 
 /// Writes float32 arrays to an `.npz` (stored, uncompressed), atomically.
@@ -325,6 +368,42 @@ pub fn pfnn_to_npz(net: &Net, path: &Path) -> Result<()> {
 #[cfg(test)]
 #[allow(clippy::arithmetic_side_effects)] // test fixtures, not file input
 mod tests {
+    /// Found by the `weights` fuzz target (`fuzz/README.md`): an `.npy`
+    /// header that nests 14 `{` deep made npyz's header parser run for
+    /// minutes (exponential in the depth); it is refused at once.
+    #[test]
+    fn deeply_nested_npy_headers_are_refused_at_once() {
+        let npy = |nest: usize| {
+            let mut h = format!(
+                "{{'descr': '<f4', 'fortran_order': {} False, 'shape': (2,), }}",
+                "{".repeat(nest)
+            );
+            while (10 + h.len() + 1) % 64 != 0 {
+                h.push(' ');
+            }
+            h.push('\n');
+            let mut b = b"\x93NUMPY\x01\x00".to_vec();
+            b.extend((h.len() as u16).to_le_bytes());
+            b.extend(h.as_bytes());
+            b.extend([0u8; 8]);
+            b
+        };
+        let t = std::time::Instant::now();
+        let e = check_npy_header(&npy(14)).unwrap_err().to_string();
+        assert!(e.contains("nests brackets 16 deep"), "{e}");
+        // Inside an .npz too.
+        let mut zip = zip::ZipWriter::new(Cursor::new(Vec::new()));
+        zip.start_file("W0.npy", zip::write::FileOptions::default())
+            .unwrap();
+        zip.write_all(&npy(14)).unwrap();
+        let bytes = zip.finish().unwrap().into_inner();
+        let e = read_npz_from(Cursor::new(bytes), Path::new("x.npz")).unwrap_err();
+        assert!(format!("{e:#}").contains("nests brackets"), "{e:#}");
+        assert!(t.elapsed().as_secs() < 5);
+        // Plain headers pass.
+        check_npy_header(&npy(0)).unwrap();
+    }
+
     use super::*;
 
     fn tiny() -> Net {

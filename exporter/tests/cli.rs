@@ -761,3 +761,29 @@ fn omg_exports_the_committed_model_and_refuses_a_bad_config_without_writing() {
     assert_eq!(e.lines().count(), 1, "{e}");
     assert!(!out.exists());
 }
+
+/// Blobs of other format versions (the kept fixtures, `tests/fixtures/`)
+/// are refused by `exporter inspect` with a message that names the version
+/// found and the version supported.
+#[test]
+fn inspect_names_the_version_found_and_the_version_supported() {
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
+    for (file, found) in [("example-v1.blob", 1), ("version0.blob", 0)] {
+        let o = exporter(&["inspect", fixtures.join(file).to_str().unwrap()]);
+        assert!(!o.status.success(), "{file} inspected");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains(&format!("blob format version {found} is not supported"))
+                && err.contains(&format!(
+                    "reads version {}",
+                    phasegate::blob::FORMAT_VERSION
+                )),
+            "{file}: {err}"
+        );
+    }
+    let o = exporter(&[
+        "inspect",
+        fixtures.join("example-v2.blob").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}

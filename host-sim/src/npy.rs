@@ -31,7 +31,9 @@ impl<T: Copy> Matrix<T> {
     }
 }
 
-fn read_any<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
+/// Reads an `.npy` array of `T` (every header check of
+/// [`exporter::npz::parse_npy`]); returns its shape and data.
+pub fn read_any<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
     let bytes = exporter::atomic::read_input(path)
         .with_context(|| format!("cannot read {}", path.display()))?;
     let what = || path.display().to_string();
@@ -141,4 +143,37 @@ pub fn write_vector<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
 /// Writes `bytes` to a temporary file beside `path`, then renames it.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     exporter::atomic::write_atomic(path, bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Found by the `weights` fuzz target (`fuzz/README.md`): a 228-byte
+    /// `.npy` whose header nests `{` deep kept npyz's header parser busy
+    /// for minutes; host-sim's readers refuse it at once.
+    #[test]
+    fn deeply_nested_npy_headers_are_refused_at_once() {
+        let mut h = format!(
+            "{{'descr': '<f4', 'fortran_order': {} False, 'shape': (2, 1), }}",
+            "{".repeat(14)
+        );
+        while (10 + h.len() + 1) % 64 != 0 {
+            h.push(' ');
+        }
+        h.push('\n');
+        let mut b = b"\x93NUMPY\x01\x00".to_vec();
+        b.extend((h.len() as u16).to_le_bytes());
+        b.extend(h.as_bytes());
+        b.extend([0u8; 8]);
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("nested.npy");
+        std::fs::write(&p, &b).unwrap();
+        let t = std::time::Instant::now();
+        let e = read_matrix_f32_any(&p).unwrap_err();
+        assert!(format!("{e:#}").contains("nests brackets 16 deep"), "{e:#}");
+        assert!(read_vector_f32(&p).is_err());
+        assert!(crate::target::frames::read_npy::<f32>(&p).is_err());
+        assert!(t.elapsed().as_secs() < 5);
+    }
 }

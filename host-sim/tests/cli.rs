@@ -169,3 +169,37 @@ fn bad_arguments_fail_in_one_line_and_write_nothing() {
         assert!(!y.exists());
     }
 }
+
+/// Blobs of other format versions (the kept fixtures, `tests/fixtures/`)
+/// are refused by `host-sim eval` with a message that names the version
+/// found and the version supported, and nothing is written.
+#[test]
+fn eval_names_the_version_found_and_the_version_supported() {
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
+    let tmp = tempfile::tempdir().unwrap();
+    let y = tmp.path().join("y.npy");
+    for (file, found) in [("example-v1.blob", 1), ("version0.blob", 0)] {
+        let o = host_sim(&[
+            "eval",
+            "--model",
+            s(&fixtures.join(file)),
+            "--inputs",
+            s(&golden("inputs.npy")),
+            "--phases",
+            s(&golden("phases.npy")),
+            "--out",
+            s(&y),
+        ]);
+        assert!(!o.status.success(), "{file} ran");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains(&format!("blob format version {found} is not supported"))
+                && err.contains(&format!(
+                    "reads version {}",
+                    phasegate::blob::FORMAT_VERSION
+                )),
+            "{file}: {err}"
+        );
+        assert!(!y.exists());
+    }
+}

@@ -23,3 +23,5 @@ pub fn real_pfnn_dir() -> Option<PathBuf> {
         None
     }
 }
+
+pub mod fuzz;

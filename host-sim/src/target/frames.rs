@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, ensure, Context, Result};
+use anyhow::{bail, ensure, Result};
 use phasegate::Mix;
 
 use super::wire;
@@ -91,14 +91,7 @@ impl Frames {
 
 /// Reads an `.npy` array of `T`; returns its shape and data.
 pub fn read_npy<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let npy = npyz::NpyFile::new(&bytes[..])
-        .with_context(|| format!("{} is not an .npy file", path.display()))?;
-    let shape = npy.shape().to_vec();
-    let data = npy
-        .into_vec::<T>()
-        .with_context(|| format!("{}: wrong element type", path.display()))?;
-    Ok((shape, data))
+    crate::npy::read_any(path)
 }
 
 /// Loads `inputs` (float32, N x input_dim) and `phases` (float32, N).
