@@ -106,11 +106,9 @@ enum Command {
         /// omg --headroom`).
         #[arg(long, default_value_t = exporter::net::omg::HEADROOM)]
         headroom: f64,
-        /// Error-aware rounding of the int8 blobs from this many normal
-        /// samples (as `exporter omg --compensation-samples`); 0 rounds to
-        /// nearest.
-        #[arg(long, default_value_t = 0)]
-        compensation_samples: usize,
+        /// The int8 blob's quantiser knobs, as `exporter omg` takes them.
+        #[command(flatten)]
+        int8: host_sim::quant_knobs::Int8Knobs,
     },
     /// Run a blob on the Cortex-M4 firmware under QEMU, bit for bit against the host runtime.
     Target {
@@ -290,17 +288,16 @@ fn run(cli: Cli) -> Result<()> {
             json,
             calibration_scale,
             headroom,
-            compensation_samples,
+            int8,
         } => {
             let opts = exporter::quantise::QuantOptions {
                 calibration_scale,
                 headroom,
-                compensation_samples,
                 ..Default::default()
             };
             let mut all = Vec::new();
             for d in &dirs {
-                let a = host_sim::omg::measure(d, &opts)?;
+                let a = host_sim::omg::measure(d, &opts, &int8)?;
                 print!("{}", a.table());
                 all.push(a);
             }

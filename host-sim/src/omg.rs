@@ -17,6 +17,7 @@ use phasegate::{Model, Phase, Runtime};
 use serde::Serialize;
 
 use crate::eval::{host_runtime, HOST_CAPACITY};
+use crate::quant_knobs::Int8Knobs;
 
 /// A `(clips, frames, width)` array.
 #[derive(Clone, Debug)]
@@ -478,15 +479,20 @@ pub struct OmgAccuracy {
 }
 
 /// Measures everything for `dir`, the blobs quantised with `opts` (its
-/// weight format aside).
-pub fn measure(dir: &Path, opts: &QuantOptions) -> Result<OmgAccuracy> {
+/// weight format aside), the int8 blob also with `int8`'s knobs.
+pub fn measure(dir: &Path, opts: &QuantOptions, int8: &Int8Knobs) -> Result<OmgAccuracy> {
     let d = load_dir(dir)?;
     let float = float_agreement(&d)?;
-    let mut fixed = Vec::new();
-    for (w, name) in [(WeightFormat::I16, "int16"), (WeightFormat::I8, "int8")] {
-        let blob = export(&d, w, opts)?;
-        fixed.push(fixed_agreement(&d, &blob, name)?);
-    }
+    let int16 = export(&d, WeightFormat::I16, opts)?;
+    let int8_opts = QuantOptions {
+        weights: WeightFormat::I8,
+        ..opts.clone()
+    };
+    let (int8, _) = int8.export(&d.omg.net, None, int8_opts)?;
+    let fixed = vec![
+        fixed_agreement(&d, &int16, "int16")?,
+        fixed_agreement(&d, &int8, "int8")?,
+    ];
     Ok(OmgAccuracy {
         dir: dir.display().to_string(),
         float,
