@@ -10,6 +10,7 @@ pub mod eval;
 pub mod golden;
 pub mod npy;
 pub mod omg;
+pub mod omg_reach;
 pub mod quant_knobs;
 pub mod render;
 pub mod rollout;

@@ -88,6 +88,29 @@ enum Command {
         #[command(flatten)]
         int8: host_sim::quant_knobs::Int8Knobs,
     },
+    /// OMG models reaching (docs/omg.md): grounded rollouts of the rig's
+    /// held-out clips in f64 and as int16 and int8 blobs; reach success,
+    /// frames to reach, final distance, joint error, roughness, and the
+    /// blobs' joint difference to the f64 rollout.
+    OmgReach {
+        /// Model directories (model.safetensors, config.json, ref_*.npy).
+        #[arg(required = true)]
+        dirs: Vec<PathBuf>,
+        /// The data set `python3 -m tools.omg.generate --out DIR` wrote
+        /// (its `<rig>/{test,val}.npy` and `clips.json` are read).
+        #[arg(long, default_value = "data/omg")]
+        data: PathBuf,
+        /// Also write every figure as JSON.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Factor between calibrated maxima and the i16 range (as `exporter
+        /// omg --headroom`).
+        #[arg(long, default_value_t = exporter::net::omg::HEADROOM)]
+        headroom: f64,
+        /// The int8 blob's quantiser knobs, as `exporter omg` takes them.
+        #[command(flatten)]
+        int8: host_sim::quant_knobs::Int8Knobs,
+    },
     /// OMG models (docs/omg.md): the f64 graph forward vs the committed
     /// PyTorch references, and int16 / int8 blobs vs the f64 forward, one
     /// step and over the 300-frame grounded rollout.
@@ -280,6 +303,28 @@ fn run(cli: Cli) -> Result<()> {
             );
             if let Some(path) = json {
                 exporter::atomic::write_atomic(&path, &serde_json::to_vec_pretty(&a)?)?;
+            }
+            Ok(())
+        }
+        Command::OmgReach {
+            dirs,
+            data,
+            json,
+            headroom,
+            int8,
+        } => {
+            let opts = exporter::quantise::QuantOptions {
+                headroom,
+                ..Default::default()
+            };
+            let mut all = Vec::new();
+            for d in &dirs {
+                let r = host_sim::omg_reach::measure(d, &data, &opts, &int8)?;
+                print!("{}", r.table());
+                all.push(r);
+            }
+            if let Some(path) = json {
+                exporter::atomic::write_atomic(&path, &serde_json::to_vec_pretty(&all)?)?;
             }
             Ok(())
         }

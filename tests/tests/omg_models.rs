@@ -127,3 +127,71 @@ fn import_errors_name_the_file_and_the_tensor() {
     );
     assert!(!e.contains('\n'));
 }
+
+/// `host-sim omg-reach`'s f64 rollouts of the held-out clips give the
+/// NumPy evaluation's figures (`models/omg/eval.json`, grounded mode):
+/// two implementations of the loop and the metrics agree. Needs the data
+/// set (`python3 -m tools.omg.generate --out data/omg --seed 0 --rigs
+/// R1,R4`, about a minute; .ci/run generates it and runs this test again).
+#[test]
+fn reach_metrics_match_the_numpy_evaluation() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let data = root.join("data/omg");
+    if !data.join("R1/clips.json").exists() || !data.join("R4/clips.json").exists() {
+        eprintln!(
+            "OMG data set absent at {}: reach metrics not checked \
+             (python3 -m tools.omg.generate --out data/omg --seed 0 --rigs R1,R4)",
+            data.display()
+        );
+        return;
+    }
+    let eval: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(root.join("models/omg/eval.json")).unwrap()).unwrap();
+    let knobs = host_sim::quant_knobs::Int8Knobs::default();
+    let opts = QuantOptions {
+        headroom: HEADROOM,
+        ..QuantOptions::default()
+    };
+    for name in MODELS {
+        let r = host_sim::omg_reach::measure(&model_dir(name), &data, &opts, &knobs).unwrap();
+        eprint!("{}", r.table());
+        let want = eval
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|m| m["name"] == name)
+            .unwrap_or_else(|| panic!("{name} not in eval.json"));
+        let f = r.rows.iter().find(|x| x.run == "f64").unwrap();
+        let g = &want["grounded"];
+        let close = |a: f64, b: &serde_json::Value, tol: f64, what: &str| {
+            let b = b.as_f64().unwrap();
+            assert!(
+                (a - b).abs() <= tol,
+                "{name} {what}: host-sim {a}, NumPy {b}"
+            );
+        };
+        assert_eq!(r.clips, want["clips"].as_u64().unwrap() as usize, "{name}");
+        assert_eq!(f.targets, want["gt"]["targets"].as_u64().unwrap() as usize);
+        close(f.reach, &g["reach"], 1e-9, "reach");
+        close(
+            f.frames_median.unwrap(),
+            &g["frames"],
+            1e-9,
+            "frames to reach",
+        );
+        close(f.final_m, &g["final_m"], 1e-4, "final distance");
+        close(f.joint_vs_data_cm, &g["joint_cm"], 1e-3, "joint error");
+        close(f.rms, &g["rms"], 1e-5, "roughness");
+        let d = r.rows.iter().find(|x| x.run == "data").unwrap();
+        close(d.reach, &want["gt"]["reach"], 1e-9, "data reach");
+        // The blobs ran the same clips and were compared with the f64 rollout.
+        for run in ["int16", "int8"] {
+            let b = r.rows.iter().find(|x| x.run == run).unwrap();
+            assert_eq!(b.targets, f.targets);
+            assert!(
+                b.vs_f64.as_ref().unwrap().frames == r.clips * 300,
+                "{name} {run}"
+            );
+        }
+    }
+}

@@ -1,0 +1,394 @@
+//! `host-sim omg-reach`: the OMG models reaching on the held-out clips of
+//! their rig, in f64 and as int16 and int8 blobs on the host runtime.
+//!
+//! Every clip is rolled out grounded from its frame 0 for its 300 frames,
+//! driven only by the data's targets (as `tools/omg/evaluate.py` does, so
+//! the f64 figures can be checked against `models/omg/eval.json`). Per
+//! spawned hand target (the first `reps` constant-target intervals of each
+//! hand; the return to rest is not counted): reached when the hand gets
+//! within [`CONTACT_RADIUS_M`] before the data's next target is due, frames
+//! from spawn to the first such frame, and the distance on the target's
+//! last frame. Beside them the joint position error against the data and
+//! the RMS roughness (spec §3.5, eq 3.9 in the author's code's form), and,
+//! for the blobs, the joint position difference to the f64 rollout.
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use phasegate::blob::WeightFormat;
+use serde::Serialize;
+
+use crate::omg::{diff, load_dir, rollout, Diff, FixedOmg, Mode, OmgDir};
+use crate::quant_knobs::Int8Knobs;
+use exporter::quantise::QuantOptions;
+
+/// The data's contact threshold: a hand this close to its target reached it.
+pub const CONTACT_RADIUS_M: f64 = 0.1;
+
+/// The held-out clips of one rig: its test and validation splits.
+pub struct HeldOut {
+    /// `(clip, frame)` rows of the model's width.
+    pub clips: Vec<Vec<Vec<f64>>>,
+    /// Hand targets spawned per hand in each clip (`clips.json` `reps`).
+    pub reps: Vec<usize>,
+}
+
+#[derive(serde::Deserialize)]
+struct ClipMeta {
+    split: String,
+    row: usize,
+    reps: usize,
+}
+
+impl HeldOut {
+    /// Reads `data/<rig>/{test,val}.npy` (their first `width` columns) and
+    /// `clips.json`, as `tools/omg/generate` writes them.
+    pub fn read(data: &Path, rig: &str, width: usize) -> Result<HeldOut> {
+        let dir = data.join(rig);
+        let meta_path = dir.join("clips.json");
+        let meta: Vec<ClipMeta> = serde_json::from_slice(
+            &std::fs::read(&meta_path).with_context(|| format!("{}", meta_path.display()))?,
+        )
+        .with_context(|| format!("{}", meta_path.display()))?;
+        let mut out = HeldOut {
+            clips: Vec::new(),
+            reps: Vec::new(),
+        };
+        for split in ["test", "val"] {
+            let path = dir.join(format!("{split}.npy"));
+            let (shape, data) = crate::npy::read_array_f32(&path)?;
+            let [n, t, w] = shape[..] else {
+                bail!(
+                    "{}: shape {shape:?}, expected (clips, frames, width)",
+                    path.display()
+                );
+            };
+            if w < width {
+                bail!("{}: width {w}, the model needs {width}", path.display());
+            }
+            for c in 0..n {
+                let reps = meta
+                    .iter()
+                    .find(|m| m.split == split && m.row == c)
+                    .with_context(|| {
+                        format!("{}: no {split} clip with row {c}", meta_path.display())
+                    })?
+                    .reps;
+                out.reps.push(reps);
+                out.clips.push(
+                    (0..t)
+                        .map(|f| {
+                            data[(c * t + f) * w..][..width]
+                                .iter()
+                                .map(|&v| f64::from(v))
+                                .collect()
+                        })
+                        .collect(),
+                );
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// `[start, end)` of the first `reps` constant-target intervals of one
+/// hand's target positions.
+pub fn hand_targets(tpos: &[[f64; 3]], reps: usize) -> Vec<(usize, usize)> {
+    let mut bounds = vec![0];
+    for t in 1..tpos.len() {
+        let moved = (0..3)
+            .map(|d| (tpos[t][d] - tpos[t - 1][d]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        if moved > 1e-6 {
+            bounds.push(t);
+        }
+    }
+    bounds.push(tpos.len());
+    bounds.windows(2).map(|w| (w[0], w[1])).take(reps).collect()
+}
+
+/// Per target: reached, frames to reach, last-frame distance.
+#[derive(Clone, Debug, Default)]
+pub struct TargetStats {
+    /// Whether each target was reached in time.
+    pub reached: Vec<bool>,
+    /// Frames from spawn to the first frame within reach, reached targets.
+    pub frames: Vec<usize>,
+    /// Hand-target distance on each target's last frame, metres.
+    pub final_m: Vec<f64>,
+}
+
+/// [`TargetStats`] of one clip's frames `y` against the clip's own targets.
+pub fn reach_stats(
+    d: &OmgDir,
+    y: &[Vec<f64>],
+    clip: &[Vec<f64>],
+    reps: usize,
+    s: &mut TargetStats,
+) {
+    let cfg = &d.omg.config;
+    let (pos, tpos) = (cfg.slice("pos"), cfg.slice("target_pos"));
+    for h in 0..2.min(cfg.key) {
+        let j = cfg.key_joint_indices[h];
+        let targets: Vec<[f64; 3]> = clip
+            .iter()
+            .map(|f| std::array::from_fn(|k| f[tpos.start + 3 * h + k]))
+            .collect();
+        let dist: Vec<f64> = y
+            .iter()
+            .zip(&targets)
+            .map(|(f, t)| {
+                (0..3)
+                    .map(|k| (f[pos.start + 3 * j + k] - t[k]).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+            })
+            .collect();
+        for (a, b) in hand_targets(&targets, reps) {
+            let hit = dist[a..b].iter().position(|&v| v < CONTACT_RADIUS_M);
+            s.reached.push(hit.is_some());
+            s.frames.extend(hit);
+            s.final_m.push(dist[b - 1]);
+        }
+    }
+}
+
+/// `sqrt(mean_t dr_t^2)` of one clip: dr_t the mean over joints and over
+/// the forward and up vectors of the angle between frames t and t + 1.
+pub fn rms_roughness(d: &OmgDir, y: &[Vec<f64>]) -> f64 {
+    let rot = d.omg.config.slice("rot");
+    let unit = |v: &[f64]| {
+        let n = v.iter().map(|a| a * a).sum::<f64>().sqrt().max(1e-8);
+        [v[0] / n, v[1] / n, v[2] / n]
+    };
+    let mut sq = 0.0;
+    for w in y.windows(2) {
+        let (a, b) = (&w[0][rot.clone()], &w[1][rot.clone()]);
+        let vectors = a.len() / 3;
+        let mut sum = 0.0;
+        for v in 0..vectors {
+            let (p, q) = (unit(&a[3 * v..3 * v + 3]), unit(&b[3 * v..3 * v + 3]));
+            let c: f64 = (0..3).map(|k| p[k] * q[k]).sum();
+            sum += c.clamp(-1.0, 1.0).acos();
+        }
+        let dr = sum / vectors as f64;
+        sq += dr * dr;
+    }
+    (sq / (y.len() - 1).max(1) as f64).sqrt()
+}
+
+/// One way of running a model, on every held-out clip.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReachRow {
+    /// "data", "f64", "int16" or "int8".
+    pub run: String,
+    /// Blob bytes (0 for data and f64).
+    pub blob_bytes: usize,
+    /// Share of the spawned hand targets reached in time.
+    pub reach: f64,
+    /// Targets.
+    pub targets: usize,
+    /// Median frames from spawn to reach, reached targets.
+    pub frames_median: Option<f64>,
+    /// Mean last-frame distance, metres.
+    pub final_m: f64,
+    /// Mean joint position error against the data, cm.
+    pub joint_vs_data_cm: f64,
+    /// RMS roughness, radians per frame, mean over clips.
+    pub rms: f64,
+    /// Against the f64 rollout (blobs only).
+    pub vs_f64: Option<Diff>,
+}
+
+/// `host-sim omg-reach`'s figures for one model.
+#[derive(Clone, Debug, Serialize)]
+pub struct OmgReach {
+    /// The model directory.
+    pub dir: String,
+    /// Its rig.
+    pub rig: String,
+    /// Held-out clips.
+    pub clips: usize,
+    /// Data, f64, int16, int8.
+    pub rows: Vec<ReachRow>,
+}
+
+fn median(v: &[usize]) -> Option<f64> {
+    let mut v = v.to_vec();
+    v.sort_unstable();
+    let n = v.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(v[n / 2] as f64),
+        _ => Some((v[n / 2 - 1] + v[n / 2]) as f64 / 2.0),
+    }
+}
+
+fn mean(v: impl IntoIterator<Item = f64>) -> f64 {
+    let (s, n) = v
+        .into_iter()
+        .fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    s / n.max(1) as f64
+}
+
+fn row(d: &OmgDir, run: &str, blob_bytes: usize, held: &HeldOut, ys: &[Vec<Vec<f64>>]) -> ReachRow {
+    let mut s = TargetStats::default();
+    for ((y, clip), &reps) in ys.iter().zip(&held.clips).zip(&held.reps) {
+        reach_stats(d, y, clip, reps, &mut s);
+    }
+    let pos = d.omg.config.slice("pos");
+    let joint_err = ys.iter().zip(&held.clips).flat_map(|(y, c)| {
+        let pos = pos.clone();
+        y.iter().zip(c).flat_map(move |(a, b)| {
+            (0..pos.len() / 3).map(move |j| {
+                (0..3)
+                    .map(|k| (a[pos.start + 3 * j + k] - b[pos.start + 3 * j + k]).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+            })
+        })
+    });
+    ReachRow {
+        run: run.into(),
+        blob_bytes,
+        reach: mean(s.reached.iter().map(|&r| f64::from(u8::from(r)))),
+        targets: s.reached.len(),
+        frames_median: median(&s.frames),
+        final_m: mean(s.final_m.iter().copied()),
+        joint_vs_data_cm: 100.0 * mean(joint_err),
+        rms: mean(ys.iter().map(|y| rms_roughness(d, y))),
+        vs_f64: None,
+    }
+}
+
+/// Grounded rollouts of every held-out clip, one step by `step`.
+fn rollouts(
+    d: &OmgDir,
+    held: &HeldOut,
+    mut step: impl FnMut(&[f64]) -> Result<Vec<f64>>,
+) -> Result<Vec<Vec<Vec<f64>>>> {
+    let t = d.omg.config.slice("target");
+    held.clips
+        .iter()
+        .map(|clip| {
+            let targets: Vec<&[f64]> = clip.iter().map(|f| &f[t.clone()]).collect();
+            rollout(&d.omg.config, &clip[0], &targets, Mode::Grounded, &mut step)
+        })
+        .collect()
+}
+
+/// The rig named in `dir`'s `config.json`.
+fn rig_of(dir: &Path) -> Result<String> {
+    let path = dir.join("config.json");
+    let v: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(&path).with_context(|| format!("{}", path.display()))?,
+    )
+    .with_context(|| format!("{}", path.display()))?;
+    v["rig"]
+        .as_str()
+        .map(str::to_owned)
+        .with_context(|| format!("{}: no \"rig\"", path.display()))
+}
+
+/// Measures `dir`'s model on its rig's held-out clips under `data`.
+pub fn measure(dir: &Path, data: &Path, opts: &QuantOptions, int8: &Int8Knobs) -> Result<OmgReach> {
+    let d = load_dir(dir)?;
+    let rig = rig_of(dir)?;
+    let held = HeldOut::read(data, &rig, d.omg.config.model_width)?;
+    let float = rollouts(&d, &held, |x| Ok(d.omg.step(x)))?;
+    let mut rows = vec![
+        row(&d, "data", 0, &held, &held.clips),
+        row(&d, "f64", 0, &held, &float),
+    ];
+    let int16 = crate::omg::export(&d, WeightFormat::I16, opts)?;
+    let int8_opts = QuantOptions {
+        weights: WeightFormat::I8,
+        ..opts.clone()
+    };
+    let (int8, _) = int8.export(&d.omg.net, None, int8_opts)?;
+    let flat = |v: &[Vec<Vec<f64>>]| v.concat();
+    for (name, blob) in [("int16", &int16), ("int8", &int8)] {
+        let mut fx = FixedOmg::new(blob)?;
+        let ys = rollouts(&d, &held, |x| Ok(d.omg.frame(&fx.run(x)?, x)))?;
+        let mut r = row(&d, name, blob.len(), &held, &ys);
+        r.vs_f64 = Some(diff(&d.omg, &flat(&ys), &flat(&float)));
+        rows.push(r);
+    }
+    Ok(OmgReach {
+        dir: dir.display().to_string(),
+        rig,
+        clips: held.clips.len(),
+        rows,
+    })
+}
+
+impl OmgReach {
+    /// The figures as a table, with the issue's bars for the blobs.
+    pub fn table(&self) -> String {
+        let mut s = format!(
+            "{} (rig {}, {} held-out clips, grounded rollouts of 300 frames)\n\
+             run      bytes  reach %  targets  frames to reach (median)  final m  joint vs data cm  RMS rad/frame | vs f64: joint p99 cm  max cm\n",
+            self.dir, self.rig, self.clips
+        );
+        for r in &self.rows {
+            let vs = r.vs_f64.as_ref().map_or("-".to_string(), |v| {
+                format!("{:.3}  {:.3}", 100.0 * v.p99_joint_m, 100.0 * v.max_joint_m)
+            });
+            s += &format!(
+                "{:<6} {:>7} {:>8.1} {:>8} {:>25} {:>8.3} {:>17.2} {:>14.4} | {}\n",
+                r.run,
+                r.blob_bytes,
+                100.0 * r.reach,
+                r.targets,
+                r.frames_median
+                    .map_or("-".to_string(), |f| format!("{f:.1}")),
+                r.final_m,
+                r.joint_vs_data_cm,
+                r.rms,
+                vs
+            );
+        }
+        let float = self.rows.iter().find(|r| r.run == "f64");
+        for r in self.rows.iter().filter(|r| r.vs_f64.is_some()) {
+            let (Some(f), Some(v)) = (float, &r.vs_f64) else {
+                continue;
+            };
+            let pp = 100.0 * (r.reach - f.reach);
+            let bar_cm = if r.run == "int16" { 1.0 } else { 2.0 };
+            let p99 = 100.0 * v.p99_joint_m;
+            s += &format!(
+                "{}: reach {:+.1} pp vs f64 (bar: within 2) {}; p99 joint vs f64 {:.3} cm (bar: <= {bar_cm}) {}\n",
+                r.run,
+                pp,
+                if pp.abs() <= 2.0 { "met" } else { "NOT met" },
+                p99,
+                if p99 <= bar_cm { "met" } else { "NOT met" }
+            );
+        }
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hand_targets_split_at_every_move_and_keep_the_first_reps() {
+        let a = [0.0, 0.0, 0.0];
+        let b = [0.5, 0.0, 0.0];
+        let c = [0.5, 0.2, 0.0];
+        let t = [a, a, b, b, b, c, a, a];
+        assert_eq!(hand_targets(&t, 9), vec![(0, 2), (2, 5), (5, 6), (6, 8)]);
+        assert_eq!(hand_targets(&t, 2), vec![(0, 2), (2, 5)]);
+        assert_eq!(hand_targets(&[a; 4], 1), vec![(0, 4)]);
+    }
+
+    #[test]
+    fn median_of_odd_even_and_empty() {
+        assert_eq!(median(&[3, 1, 2]), Some(2.0));
+        assert_eq!(median(&[4, 1, 2, 3]), Some(2.5));
+        assert_eq!(median(&[]), None);
+    }
+}
