@@ -27,10 +27,34 @@ pub enum Error {
         outputs: u32,
     },
     /// The network gave a NaN or infinite output (only a float network
-    /// can: fixed-point outputs are bounded); the pose is left untouched.
+    /// can: fixed-point outputs are bounded), or a reaching controller's
+    /// starting frame holds one; the pose is left untouched.
     NonFinite {
         /// Index of the first offending output.
         index: u32,
+    },
+    /// A reaching target holds NaN, an infinity, a coordinate beyond
+    /// [`crate::reach::MAX_TARGET_M`] or an axis of no length; refused, the
+    /// controller's targets are unchanged.
+    BadTarget {
+        /// 0-2 position, 3-5 forward, 6-8 up (or the value's index in a
+        /// whole target block); 255: no such key joint.
+        field: u8,
+    },
+    /// A reaching layout does not fit itself or the network
+    /// ([`crate::reach::ReachLayout::check`]).
+    BadLayout {
+        /// The failed check: 0 frame width vs network inputs, 1 no key
+        /// joints, 2 positions, 3 rotations, 4 costs, 5 targets, 6 key
+        /// joint indices, 7 network output blocks.
+        reason: u8,
+    },
+    /// Frames wider than the controller's buffers.
+    TooWide {
+        /// Values needed.
+        width: u32,
+        /// Values the buffers hold.
+        capacity: u32,
     },
 }
 
@@ -57,6 +81,16 @@ impl fmt::Display for Error {
             Error::NonFinite { index } => {
                 write!(f, "network output {index} is NaN or infinite")
             }
+            Error::BadTarget { field } => {
+                write!(f, "reaching target field {field} is not finite, too far or has no direction")
+            }
+            Error::BadLayout { reason } => {
+                write!(f, "reaching layout does not fit the network (check {reason})")
+            }
+            Error::TooWide { width, capacity } => write!(
+                f,
+                "frames of {width} values do not fit the controller's {capacity}-value buffers"
+            ),
         }
     }
 }

@@ -1,4 +1,5 @@
-//! PFNN locomotion control: stick in, pose out, every frame.
+//! PFNN locomotion control: stick in, pose out, every frame; and OMG
+//! reaching control ([`Reach`]: targets in, pose out, every frame).
 //!
 //! [`PfnnController`] runs the public PFNN demo's character loop on flat
 //! ground (trajectory blending toward the command, gait blending, the 342
@@ -32,6 +33,7 @@ pub mod layout;
 mod locomotion;
 mod pfnn;
 mod pose;
+pub mod reach;
 mod real;
 pub mod trajectory;
 
@@ -40,4 +42,5 @@ pub use error::{Error, Result};
 pub use locomotion::{rates, Locomotion, Network};
 pub use pfnn::{phase_from_cycles, PfnnController};
 pub use pose::Pose;
+pub use reach::{CostMode, Reach, ReachLayout, ReachPose, Target};
 pub use real::Real;

@@ -43,6 +43,8 @@ pub trait Real:
     fn sin(self) -> Self;
     /// Cosine of radians.
     fn cos(self) -> Self;
+    /// Arccosine, radians in `[0, pi]`; NaN outside `[-1, 1]`.
+    fn acos(self) -> Self;
     /// Four-quadrant arctangent of `self / x`, radians in `[-pi, pi]`.
     fn atan2(self, x: Self) -> Self;
     /// `self` to the power `e`.
@@ -104,6 +106,9 @@ impl Real for f32 {
     fn cos(self) -> Self {
         libm::cosf(self)
     }
+    fn acos(self) -> Self {
+        libm::acosf(self)
+    }
     fn atan2(self, x: Self) -> Self {
         libm::atan2f(self, x)
     }
@@ -141,6 +146,9 @@ impl Real for f64 {
     }
     fn cos(self) -> Self {
         libm::cos(self)
+    }
+    fn acos(self) -> Self {
+        libm::acos(self)
     }
     fn atan2(self, x: Self) -> Self {
         libm::atan2(self, x)

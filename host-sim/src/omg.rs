@@ -10,7 +10,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context, Result};
-use exporter::net::omg::{read_omg, OmgConfig, OmgNet};
+use exporter::net::omg::{read_omg, OmgNet};
 use exporter::quantise::QuantOptions;
 use phasegate::blob::WeightFormat;
 use phasegate::{Model, Phase, Runtime};
@@ -18,6 +18,8 @@ use serde::Serialize;
 
 use crate::eval::{host_runtime, HOST_CAPACITY};
 use crate::quant_knobs::Int8Knobs;
+use phasegate_controller::reach::{self, Reach, ReachLayout};
+use phasegate_controller::Network;
 
 /// A `(clips, frames, width)` array.
 #[derive(Clone, Debug)]
@@ -106,95 +108,101 @@ pub fn load_dir(dir: &Path) -> Result<OmgDir> {
     })
 }
 
-fn normalised(v: [f64; 3]) -> [f64; 3] {
-    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-8);
-    [v[0] / n, v[1] / n, v[2] / n]
-}
-
-/// (side, up, forward) unit axes from a 6-D forward/up rotation,
-/// side = normalise(up x forward).
-fn axes(r: &[f64]) -> [[f64; 3]; 3] {
-    let f = normalised([r[0], r[1], r[2]]);
-    let u = normalised([r[3], r[4], r[5]]);
-    let s = normalised([
-        u[1] * f[2] - u[2] * f[1],
-        u[2] * f[0] - u[0] * f[2],
-        u[0] * f[1] - u[1] * f[0],
-    ]);
-    [s, u, f]
-}
-
-/// The cost block (6K) recomputed from a raw frame's decoded pose and its
-/// targets (`omg_np.costs_from_frame`): target position minus key-joint
-/// position (3K), then per key joint the angles / pi between the side, up
-/// and forward axes of target and joint (3K).
-pub fn grounded_costs(cfg: &OmgConfig, y: &[f64]) -> Vec<f64> {
-    let (pos, rot) = (cfg.slice("pos"), cfg.slice("rot"));
-    let (tpos, trot) = (cfg.slice("target_pos"), cfg.slice("target_rot"));
-    let k = cfg.key;
-    let mut out = vec![0.0; 6 * k];
-    for (i, &j) in cfg.key_joint_indices.iter().enumerate() {
-        for d in 0..3 {
-            out[3 * i + d] = y[tpos.start + 3 * i + d] - y[pos.start + 3 * j + d];
-        }
-        let at = axes(&y[trot.start + 6 * i..][..6]);
-        let aj = axes(&y[rot.start + 6 * j..][..6]);
-        for a in 0..3 {
-            let dot: f64 = (0..3).map(|d| at[a][d] * aj[a][d]).sum();
-            out[3 * k + 3 * i + a] = dot.clamp(-1.0, 1.0).acos() / std::f64::consts::PI;
-        }
+/// The controller's layout of `omg`'s frames (`phasegate_controller::reach`).
+pub fn reach_layout(omg: &OmgNet) -> Result<ReachLayout> {
+    let cfg = &omg.config;
+    let key_joints = cfg
+        .key_joint_indices
+        .iter()
+        .map(|&j| u16::try_from(j))
+        .collect::<std::result::Result<heapless::Vec<u16, { reach::MAX_KEY }>, _>>()
+        .map_err(|_| {
+            anyhow!(
+                "key joints {:?}: too many or too large",
+                cfg.key_joint_indices
+            )
+        })?;
+    if key_joints.len() != cfg.key_joint_indices.len() {
+        bail!(
+            "{} key joints: the controller takes at most {}",
+            cfg.key,
+            reach::MAX_KEY
+        );
     }
-    out
+    Ok(ReachLayout {
+        width: cfg.model_width,
+        pos: cfg.slice("pos"),
+        rot: cfg.slice("rot"),
+        cost: cfg.slice("cost"),
+        target: cfg.slice("target"),
+        key_joints,
+        blocks: omg.blocks.clone(),
+    })
 }
 
 /// What is fed back besides the network's output.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Mode {
-    /// The predicted costs are fed back (the thesis's loop).
-    Faithful,
-    /// The costs are recomputed from the decoded pose and the targets.
-    Grounded,
+pub use phasegate_controller::CostMode as Mode;
+
+/// The f64 graph forward as the controller's network.
+pub struct FloatOmg<'n>(pub &'n OmgNet);
+
+impl Network<f64> for FloatOmg<'_> {
+    fn input_dim(&self) -> usize {
+        self.0.net.input_dim()
+    }
+    fn output_dim(&self) -> usize {
+        self.0.net.output_dim()
+    }
+    fn predict(&mut self, _: f64, x: &[f64], y: &mut [f64]) -> phasegate_controller::Result<()> {
+        y.copy_from_slice(&self.0.net.forward(x, 0.0));
+        Ok(())
+    }
+    fn mean_output(&self, y: &mut [f64]) -> phasegate_controller::Result<()> {
+        y.fill(0.0);
+        Ok(())
+    }
 }
 
-/// The rollout loop: frame 0 is `first`; every later frame `t` is
-/// `step(previous)` with its target block set to `targets[t]` and, in
-/// grounded mode, its costs recomputed. Returns every frame (raw units).
+/// Widest frame the host's rollouts take.
+pub const MAX_WIDTH: usize = 2048;
+
+/// The controller's reaching loop (`phasegate_controller::Reach`, in f64)
+/// from frame `first`: every later frame `t` is one step of `net` with the
+/// target block set to `targets[t]`. Returns every frame (raw units).
 pub fn rollout(
-    cfg: &OmgConfig,
+    omg: &OmgNet,
     first: &[f64],
     targets: &[&[f64]],
     mode: Mode,
-    mut step: impl FnMut(&[f64]) -> Result<Vec<f64>>,
+    net: &mut impl Network<f64>,
 ) -> Result<Vec<Vec<f64>>> {
-    let (tr, cr) = (cfg.slice("target"), cfg.slice("cost"));
+    let mut reach: Box<Reach<f64, MAX_WIDTH>> =
+        Box::new(Reach::new(net, reach_layout(omg)?, mode, first)?);
     let mut out = vec![first.to_vec()];
     for (t, target) in targets.iter().enumerate().skip(1) {
-        let prev = out.last().map_or(first, Vec::as_slice);
-        let mut y = step(prev).with_context(|| format!("frame {t}"))?;
-        y[tr.clone()].copy_from_slice(target);
-        if mode == Mode::Grounded {
-            let c = grounded_costs(cfg, &y);
-            y[cr.clone()].copy_from_slice(&c);
-        }
-        out.push(y);
+        reach
+            .set_target_block(target)
+            .with_context(|| format!("frame {t}"))?;
+        reach.step(net).with_context(|| format!("frame {t}"))?;
+        out.push(reach.frame().to_vec());
     }
     Ok(out)
 }
 
-/// The grounded rollout of clip `c` of the references, one step by `step`.
+/// The grounded rollout of clip `c` of the references by `net`.
 pub fn reference_rollout(
     d: &OmgDir,
     c: usize,
-    step: impl FnMut(&[f64]) -> Result<Vec<f64>>,
+    net: &mut impl Network<f64>,
 ) -> Result<Vec<Vec<f64>>> {
     let frames = d.refs.targets.dims[1];
     let targets: Vec<&[f64]> = (0..frames).map(|t| d.refs.targets.row(c, t)).collect();
     rollout(
-        &d.omg.config,
+        &d.omg,
         d.refs.inputs.row(c, 0),
         &targets,
         Mode::Grounded,
-        step,
+        net,
     )
 }
 
@@ -238,6 +246,30 @@ impl<'b> FixedOmg<'b> {
             .dequantise_output(&y, &mut self.yf)
             .map_err(|e| anyhow!("{e}"))?;
         Ok(self.yf.iter().map(|&v| f64::from(v)).collect())
+    }
+}
+
+impl Network<f64> for FixedOmg<'_> {
+    fn input_dim(&self) -> usize {
+        self.xf.len()
+    }
+    fn output_dim(&self) -> usize {
+        self.yf.len()
+    }
+    fn predict(&mut self, _: f64, x: &[f64], y: &mut [f64]) -> phasegate_controller::Result<()> {
+        for (d, &s) in self.xf.iter_mut().zip(x) {
+            *d = s as f32;
+        }
+        self.rt
+            .run(Phase::from_radians(0.0)?, &self.xf, &mut self.yf)?;
+        for (d, &s) in y.iter_mut().zip(&self.yf) {
+            *d = f64::from(s);
+        }
+        Ok(())
+    }
+    fn mean_output(&self, y: &mut [f64]) -> phasegate_controller::Result<()> {
+        y.fill(0.0);
+        Ok(())
     }
 }
 
@@ -327,7 +359,7 @@ fn all_frames(c: &Clips) -> Vec<Vec<f64>> {
 pub fn float_rollouts(d: &OmgDir) -> Result<Vec<Vec<f64>>> {
     let mut out = Vec::new();
     for c in 0..d.refs.targets.dims[0] {
-        out.extend(reference_rollout(d, c, |x| Ok(d.omg.step(x)))?);
+        out.extend(reference_rollout(d, c, &mut FloatOmg(&d.omg))?);
     }
     Ok(out)
 }
@@ -414,7 +446,7 @@ pub fn int8_sized_noise(d: &OmgDir, seed: u64) -> Result<Diff> {
     let ro_float = float_rollouts(d)?;
     let mut ro = Vec::new();
     for c in 0..d.refs.targets.dims[0] {
-        ro.extend(reference_rollout(d, c, |x| Ok(noisy.step(x)))?);
+        ro.extend(reference_rollout(d, c, &mut FloatOmg(&noisy))?);
     }
     Ok(diff(&d.omg, &ro, &ro_float))
 }
@@ -434,9 +466,7 @@ pub fn fixed_agreement(d: &OmgDir, blob: &[u8], weights: &'static str) -> Result
     let ro_float = float_rollouts(d)?;
     let mut ro_fixed = Vec::new();
     for c in 0..d.refs.targets.dims[0] {
-        ro_fixed.extend(reference_rollout(d, c, |x| {
-            Ok(d.omg.frame(&fx.run(x)?, x))
-        })?);
+        ro_fixed.extend(reference_rollout(d, c, &mut fx)?);
     }
     Ok(FixedAgreement {
         weights,
@@ -556,10 +586,11 @@ impl OmgAccuracy {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use exporter::net::omg::OmgConfig;
 
     #[test]
-    fn grounded_costs_vanish_at_the_target_and_measure_angles() {
-        // J = 2, K = 1, key joint 1: pose at the target gives zero costs.
+    fn the_layout_follows_the_config() {
+        // J = 2, K = 1, key joint 1.
         let json = r#"{"format":"phasegate-omg-1","variant":"FE","J":2,"K":1,
             "key_joint_indices":[1],"model_width":41,
             "sizes":{"ae_hidden":1,"latent":1,"cost_hidden":1,"expert_hidden":1,"gate_hidden":1,"experts":1},
@@ -568,20 +599,27 @@ mod tests {
               "target_pos":[32,35],"target_rot":[35,41]},
             "out_slices":{"dphase":[0,2],"z":[2,3],"cost":[3,9]},
             "phase_update":{"a":0.9},"mode":"grounded"}"#;
-        let cfg: OmgConfig = serde_json::from_str(json).unwrap();
-        let mut y = vec![0.0; 41];
-        y[5..8].copy_from_slice(&[0.1, 0.2, 0.3]);
-        y[14..20].copy_from_slice(&[0.0, 0.0, 2.0, 0.0, 3.0, 0.0]); // f = z, u = y
-        y[32..35].copy_from_slice(&[0.1, 0.2, 0.3]);
-        y[35..41].copy_from_slice(&[0.0, 0.0, 1.0, 0.0, 1.0, 0.0]);
-        let c = grounded_costs(&cfg, &y);
-        assert!(c.iter().all(|v| v.abs() < 1e-12), "{c:?}");
-        // Turn the target a quarter about y: forward z -> x; side and
-        // forward are 90 degrees off (0.5), up unchanged.
-        y[35..38].copy_from_slice(&[1.0, 0.0, 0.0]);
-        y[32] = 0.4;
-        let c = grounded_costs(&cfg, &y);
-        assert!((c[0] - 0.3).abs() < 1e-12);
-        assert!((c[3] - 0.5).abs() < 1e-12 && c[4].abs() < 1e-12 && (c[5] - 0.5).abs() < 1e-12);
+        let config: OmgConfig = serde_json::from_str(json).unwrap();
+        let omg = OmgNet {
+            config,
+            net: exporter::net::Net {
+                mode: exporter::net::GatingMode::Constant,
+                xmean: Default::default(),
+                xstd: Default::default(),
+                ymean: Default::default(),
+                ystd: Default::default(),
+                layers: vec![],
+                wiring: Default::default(),
+            },
+            blocks: [(0..2, 0..2), (2..26, 2..26), (26..32, 26..32)],
+            target: 32..41,
+        };
+        let l = reach_layout(&omg).unwrap();
+        assert_eq!(
+            (l.pos, l.rot, l.cost, l.target),
+            (2..8, 8..20, 26..32, 32..41)
+        );
+        assert_eq!(l.key_joints.as_slice(), &[1]);
+        assert_eq!(l.width, 41);
     }
 }

@@ -18,7 +18,7 @@ use anyhow::{bail, Context, Result};
 use phasegate::blob::WeightFormat;
 use serde::Serialize;
 
-use crate::omg::{diff, load_dir, rollout, Diff, FixedOmg, Mode, OmgDir};
+use crate::omg::{diff, load_dir, rollout, Diff, FixedOmg, FloatOmg, Mode, OmgDir};
 use crate::quant_knobs::Int8Knobs;
 use exporter::quantise::QuantOptions;
 
@@ -266,14 +266,14 @@ fn row(d: &OmgDir, run: &str, blob_bytes: usize, held: &HeldOut, ys: &[Vec<Vec<f
 fn rollouts(
     d: &OmgDir,
     held: &HeldOut,
-    mut step: impl FnMut(&[f64]) -> Result<Vec<f64>>,
+    net: &mut impl phasegate_controller::Network<f64>,
 ) -> Result<Vec<Vec<Vec<f64>>>> {
     let t = d.omg.config.slice("target");
     held.clips
         .iter()
         .map(|clip| {
             let targets: Vec<&[f64]> = clip.iter().map(|f| &f[t.clone()]).collect();
-            rollout(&d.omg.config, &clip[0], &targets, Mode::Grounded, &mut step)
+            rollout(&d.omg, &clip[0], &targets, Mode::Grounded, net)
         })
         .collect()
 }
@@ -296,7 +296,7 @@ pub fn measure(dir: &Path, data: &Path, opts: &QuantOptions, int8: &Int8Knobs) -
     let d = load_dir(dir)?;
     let rig = rig_of(dir)?;
     let held = HeldOut::read(data, &rig, d.omg.config.model_width)?;
-    let float = rollouts(&d, &held, |x| Ok(d.omg.step(x)))?;
+    let float = rollouts(&d, &held, &mut FloatOmg(&d.omg))?;
     let mut rows = vec![
         row(&d, "data", 0, &held, &held.clips),
         row(&d, "f64", 0, &held, &float),
@@ -310,7 +310,7 @@ pub fn measure(dir: &Path, data: &Path, opts: &QuantOptions, int8: &Int8Knobs) -
     let flat = |v: &[Vec<Vec<f64>>]| v.concat();
     for (name, blob) in [("int16", &int16), ("int8", &int8)] {
         let mut fx = FixedOmg::new(blob)?;
-        let ys = rollouts(&d, &held, |x| Ok(d.omg.frame(&fx.run(x)?, x)))?;
+        let ys = rollouts(&d, &held, &mut fx)?;
         let mut r = row(&d, name, blob.len(), &held, &ys);
         r.vs_f64 = Some(diff(&d.omg, &flat(&ys), &flat(&float)));
         rows.push(r);

@@ -195,3 +195,43 @@ fn reach_metrics_match_the_numpy_evaluation() {
         }
     }
 }
+
+/// The device's configuration of the reaching controller: the loop in f32
+/// (`Reach<f32, _>`) over the fixed-point runtime, sized statically for
+/// the model, follows the host's loop over the same blob (f64 glue) on
+/// the reference clips; the glue's f32 rounding is all that differs.
+#[test]
+fn the_f32_reaching_loop_over_the_runtime_follows_the_host_loop() {
+    use phasegate_controller::{CostMode, Reach};
+    let opts = QuantOptions {
+        headroom: HEADROOM,
+        ..QuantOptions::default()
+    };
+    let d = load_dir(&model_dir("tiny_fe_r1")).unwrap();
+    let blob = export(&d, WeightFormat::I16, &opts).unwrap();
+    let model = phasegate::Model::from_bytes(&blob).unwrap();
+    // The blob's own activation plan, as a device would size it.
+    let mut rt: Box<phasegate::Runtime<'_, 2048>> =
+        Box::new(phasegate::Runtime::new(model).unwrap());
+    let layout = host_sim::omg::reach_layout(&d.omg).unwrap();
+    let mut host = host_sim::omg::FixedOmg::new(&blob).unwrap();
+    let mut worst = 0f64;
+    for c in 0..d.refs.targets.dims[0] {
+        let want = host_sim::omg::reference_rollout(&d, c, &mut host).unwrap();
+        let first: Vec<f32> = d.refs.inputs.row(c, 0).iter().map(|&v| v as f32).collect();
+        let mut r: Box<Reach<f32, 448>> =
+            Box::new(Reach::new(&*rt, layout.clone(), CostMode::Grounded, &first).unwrap());
+        for (t, w) in want.iter().enumerate().skip(1).take(100) {
+            let tb: Vec<f32> = d.refs.targets.row(c, t).iter().map(|&v| v as f32).collect();
+            r.set_target_block(&tb).unwrap();
+            let pose = r.step(&mut *rt).unwrap();
+            for (a, b) in pose.positions.iter().zip(&w[layout.pos.clone()]) {
+                worst = worst.max((f64::from(*a) - b).abs());
+            }
+        }
+    }
+    eprintln!(
+        "f32 loop vs f64 glue, same int16 blob, 100 frames: max position difference {worst:.2e} m"
+    );
+    assert!(worst < 1e-3, "{worst}");
+}
