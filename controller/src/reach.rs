@@ -129,14 +129,20 @@ pub struct Reach<R, const W: usize> {
     targets: [R; W],
 }
 
-/// `v` normalised; `None` when it has no direction.
+/// `v` normalised; `None` when it has no direction (all zero, or not
+/// finite). Scaled by its largest component first, so that neither huge
+/// components (whose squares overflow) nor tiny ones (whose squares
+/// vanish) lose the direction.
 fn unit<R: Real>(v: [R; 3]) -> Option<[R; 3]> {
-    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    if n.is_finite() && n > R::lit(1e-6) {
-        Some([v[0] / n, v[1] / n, v[2] / n])
-    } else {
-        None
+    let m = v
+        .iter()
+        .fold(R::ZERO, |m, x| if x.abs() > m { x.abs() } else { m });
+    if !(m.is_finite() && m > R::ZERO) || v.iter().any(|x| !x.is_finite()) {
+        return None;
     }
+    let w = [v[0] / m, v[1] / m, v[2] / m];
+    let n = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+    Some([w[0] / n, w[1] / n, w[2] / n])
 }
 
 /// `v / max(|v|, 1e-8)`, as the model's cost definition divides.
@@ -246,6 +252,12 @@ impl<R: Real, const W: usize> Reach<R, W> {
     /// The current frame `X` (the network's next input).
     pub fn frame(&self) -> &[R] {
         self.x.get(..self.layout.width).unwrap_or(&[])
+    }
+
+    /// The targets the next [`Reach::step`] writes (the frame's target
+    /// block layout: 3K positions, then 6K forward/up axes).
+    pub fn targets(&self) -> &[R] {
+        self.targets.get(self.layout.target.clone()).unwrap_or(&[])
     }
 
     /// The current pose.
@@ -529,6 +541,23 @@ mod tests {
         net.fail = false;
         r.step(&mut net).unwrap();
         assert_eq!(r.frame()[26..35], first()[26..35]);
+    }
+
+    #[test]
+    fn axes_of_any_finite_size_keep_their_direction() {
+        for v in [
+            [0.0, 4.6e27f32, 0.0],
+            [0.0, 1e-45, 0.0],
+            [0.0, f32::MAX, f32::MAX],
+        ] {
+            let u = unit(v).unwrap();
+            assert!(
+                u[0] == 0.0 && (u[1] - if v[2] == 0.0 { 1.0 } else { 0.70710677 }).abs() < 1e-6,
+                "{u:?}"
+            );
+        }
+        assert_eq!(unit([0.0f32, -0.0, 0.0]), None);
+        assert_eq!(unit([f32::NAN, 1.0, 0.0]), None);
     }
 
     #[test]

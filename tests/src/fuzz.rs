@@ -395,6 +395,114 @@ pub fn commands(mut data: &[u8]) -> Vec<(u8, Command)> {
     out
 }
 
+/// The committed OMG model `tiny_fe_r1` as an int8 blob, and its first
+/// reference frame (f32), built once.
+fn omg_blob() -> &'static (Vec<u8>, Vec<f32>, phasegate_controller::ReachLayout) {
+    static B: OnceLock<(Vec<u8>, Vec<f32>, phasegate_controller::ReachLayout)> = OnceLock::new();
+    B.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg/tiny_fe_r1");
+        let d = host_sim::omg::load_dir(&dir).expect("committed OMG model");
+        let opts = exporter::quantise::QuantOptions {
+            headroom: exporter::net::omg::HEADROOM,
+            ..Default::default()
+        };
+        let blob = host_sim::omg::export(&d, phasegate::blob::WeightFormat::I8, &opts)
+            .expect("OMG export");
+        let first = d.refs.inputs.row(0, 0).iter().map(|&v| v as f32).collect();
+        let layout = host_sim::omg::reach_layout(&d.omg).expect("layout");
+        (blob, first, layout)
+    })
+}
+
+/// The `reach` target: the OMG reaching loop (`Reach<f32>` over the
+/// runtime, the committed tiny_fe_r1 at int8, grounded and faithful) fed
+/// arbitrary target edits and steps. Each action byte picks: set a hand's
+/// target (9 hostile floats: position, forward, up), set the target of a
+/// key joint that may not exist, set the whole target block (36 floats),
+/// switch nothing and step. A refused target must leave the frame and the
+/// targets untouched (the next step equals a step without it); an
+/// accepted one must have been finite, within range and with axes; every
+/// step over the fixed-point runtime gives a finite frame.
+pub fn exercise_reach(mut data: &[u8]) -> usize {
+    use phasegate_controller::{reach::MAX_TARGET_M, CostMode, Reach, Target};
+    let (blob, first, layout) = omg_blob();
+    let mode = match data.first() {
+        Some(b) if b % 2 == 1 => CostMode::Faithful,
+        _ => CostMode::Grounded,
+    };
+    data = data.get(1..).unwrap_or(&[]);
+    let model = Model::from_bytes(blob).expect("OMG blob");
+    let mut rt = Box::new(Runtime::<ARENA>::new(model).expect("fits"));
+    let mut r: Box<Reach<f32, 448>> =
+        Box::new(Reach::new(&*rt, layout.clone(), mode, first).expect("reach"));
+    let mut steps = 0;
+    let mut actions = 0;
+    while !data.is_empty() && actions < 48 {
+        actions += 1;
+        let action = data[0] % 6;
+        data = &data[1..];
+        let before = r.frame().to_vec();
+        match action {
+            0..=2 => {
+                let key = if action == 2 {
+                    usize::from(data.first().copied().unwrap_or(0) % 8)
+                } else {
+                    usize::from(action)
+                };
+                let mut v = [0f32; 9];
+                for x in &mut v {
+                    *x = hostile_f32(&mut data);
+                }
+                let t = Target {
+                    position: [v[0], v[1], v[2]],
+                    forward: [v[3], v[4], v[5]],
+                    up: [v[6], v[7], v[8]],
+                };
+                let finite = v.iter().all(|x| x.is_finite());
+                let in_range = v[..3].iter().all(|x| f64::from(x.abs()) <= MAX_TARGET_M);
+                let targets = r.targets().to_vec();
+                match r.set_target(key, &t) {
+                    Ok(()) => assert!(
+                        key < layout.key() && finite && in_range,
+                        "accepted key {key} {t:?}"
+                    ),
+                    Err(_) => {
+                        assert_eq!(r.frame(), &before[..], "a refused target changed the frame");
+                        assert_eq!(r.targets(), &targets[..], "a refused target was kept");
+                        // Any axis with a non-zero component has a direction.
+                        let clear =
+                            v[3..6].iter().any(|x| *x != 0.0) && v[6..9].iter().any(|x| *x != 0.0);
+                        assert!(
+                            !(key < layout.key() && finite && in_range && clear),
+                            "refused a valid target for key {key}: {t:?}"
+                        );
+                    }
+                }
+            }
+            3 => {
+                let mut block = [0f32; 36];
+                for x in &mut block {
+                    *x = hostile_f32(&mut data);
+                }
+                let finite = block.iter().all(|x| x.is_finite());
+                assert_eq!(r.set_target_block(&block).is_ok(), finite);
+                assert_eq!(r.frame(), &before[..]);
+            }
+            _ => {
+                let pose = r.step(&mut *rt).expect("a fixed-point step cannot fail");
+                assert!(pose
+                    .positions
+                    .iter()
+                    .chain(pose.rotations)
+                    .all(|v| v.is_finite()));
+                assert!(r.frame().iter().all(|v| v.is_finite()), "non-finite frame");
+                steps += 1;
+            }
+        }
+    }
+    steps
+}
+
 /// The default model's styles, built once.
 fn default_styles() -> &'static [Vec<u8>] {
     static S: OnceLock<Vec<Vec<u8>>> = OnceLock::new();
@@ -770,6 +878,18 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
     walk.extend(enc(&[1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]));
     v.push(("controller", "walk-jog-stand-crouch.bin".into(), walk));
     v.push(("controller", "hostile.bin".into(), (0u8..=40).collect()));
+    // Reaching: hand targets set then steps, a whole block, hostile values.
+    let mut reach = vec![0u8];
+    for (hand, p) in [(0u8, [0.3f32, 1.1, 0.4]), (1, [-0.3, 1.0, 0.35])] {
+        reach.push(hand);
+        reach.extend(&enc(&[p[0], p[1], p[2], 0.0, 0.0, 1.0, 0.0, 1.0, 0.0])[1..]);
+        reach.extend([5u8, 5, 5, 5]);
+    }
+    reach.push(3);
+    reach.extend(&enc(&[0.2; 36])[1..]);
+    reach.extend([5u8; 4]);
+    v.push(("reach", "two-hands-then-block.bin".into(), reach));
+    v.push(("reach", "hostile.bin".into(), (0u8..=60).collect()));
     // Weight files: float32 and float64 .npz, .safetensors, .npy.
     let dir = tempfile::tempdir().unwrap();
     let arrays = vec![

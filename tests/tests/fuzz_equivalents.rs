@@ -180,6 +180,18 @@ fn controller_target_equivalent() {
 }
 
 #[test]
+fn reach_target_equivalent() {
+    let strategy = proptest::collection::vec(any::<u8>(), 0..600);
+    runner(120, 8)
+        .run(&strategy, |bytes| {
+            fuzz::exercise_reach(&bytes);
+            Ok(())
+        })
+        .unwrap();
+    byte_cases("reach", 80, 9, fuzz::exercise_reach);
+}
+
+#[test]
 fn weights_target_equivalent() {
     byte_cases("weights", 2000, 5, fuzz::exercise_weights);
 }
@@ -210,6 +222,7 @@ fn seeds_are_valid_files() {
             }
             "styled" => fuzz::exercise_styled(bytes) > 0,
             "controller" => fuzz::exercise_controller(bytes) > 0,
+            "reach" => fuzz::exercise_reach(bytes) > 0,
             "weights" => (fuzz::exercise_weights(bytes) > 0) != name.starts_with("hostile-"),
             "configs" => fuzz::exercise_configs(bytes) > 0,
             "pfnn_dir" => fuzz::exercise_pfnn_dir(bytes) == 2,
