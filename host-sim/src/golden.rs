@@ -8,6 +8,7 @@
 //! | `default` | the embedded default model (342 -> 32 -> 32 -> 311) | dense x3 | int8 |
 //! | `dense-int16` | the same network | dense x3 | int16 |
 //! | `cp-diagonal` | a synthetic 48 -> 40 -> 40 -> 24 network | CP (rank 12), diagonal, CP (rank 6) | int8 |
+//! | `omg-tiny-fe-r1` | the trained tiny FE-OMG model (`models/omg/tiny_fe_r1`, `host-sim demo`'s), 440 -> 404, on its first 64 reference frames | dense x15 (MLPs, 4-expert layers), softmax gate | int8 |
 //! | `softmax-graph` | the branching proof model (`synthetic::branching_net`: gating MLP -> softmax; two encoders -> concatenation -> three softmax-gated layers -> decoder on a slice), 40 -> 10 | dense x12, softmax gate | int8 |
 //!
 //! Regenerate them all (after a deliberate change to the arithmetic) with
@@ -32,7 +33,40 @@ pub const FRAMES: usize = 64;
 /// Seed of the golden inputs.
 pub const INPUT_SEED: u64 = 0x601D_0001;
 /// Every case, by directory name.
-pub const CASES: [&str; 4] = ["default", "dense-int16", "cp-diagonal", "softmax-graph"];
+pub const CASES: [&str; 5] = [
+    "default",
+    "dense-int16",
+    "cp-diagonal",
+    "softmax-graph",
+    OMG_CASE,
+];
+
+/// The trained OMG model `host-sim demo` runs (its float source is the
+/// committed `models/omg/tiny_fe_r1`, so the bundle has no `model.npz`; its
+/// inputs are the model's first reference frames, phases 0).
+pub const OMG_CASE: &str = "omg-tiny-fe-r1";
+
+/// The files of a bundle.
+pub fn files(case: &str) -> &'static [&'static str] {
+    if case == OMG_CASE {
+        &[
+            "model.blob",
+            "inputs.npy",
+            "phases.npy",
+            "expected_q.npy",
+            "expected.npy",
+        ]
+    } else {
+        &[
+            "model.npz",
+            "model.blob",
+            "inputs.npy",
+            "phases.npy",
+            "expected_q.npy",
+            "expected.npy",
+        ]
+    }
+}
 
 /// The float network of `case` and the options it is exported with.
 fn case_source(case: &str) -> Result<(Net, QuantOptions)> {
@@ -63,6 +97,9 @@ fn case_source(case: &str) -> Result<(Net, QuantOptions)> {
 /// phases.npy, expected_q.npy and expected.npy of `case` into `dir`, all
 /// derived from fixed seeds.
 pub fn write_case(case: &str, dir: &Path) -> Result<()> {
+    if case == OMG_CASE {
+        return write_omg_case(dir);
+    }
     let (net, opts) = case_source(case)?;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let npz = dir.join("model.npz");
@@ -81,6 +118,21 @@ pub fn write_case(case: &str, dir: &Path) -> Result<()> {
     let (blob, _) = export(&net, None, &opts)?;
     exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
     let (x, p) = sample_matrix(&net, FRAMES, 1.0, INPUT_SEED);
+    let run = run_fixed(&blob, &x, &p)?;
+    write_matrix(&dir.join("inputs.npy"), &x)?;
+    write_vector(&dir.join("phases.npy"), &p)?;
+    write_matrix(&dir.join("expected_q.npy"), &run.raw)?;
+    write_matrix(&dir.join("expected.npy"), &run.outputs)?;
+    Ok(())
+}
+
+fn write_omg_case(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let e = crate::demo_omg::embedded()?;
+    let blob = crate::demo_omg::int8_blob(&e.omg)?;
+    exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
+    let x = crate::demo_omg::reference_frames(FRAMES)?;
+    let p = vec![0f32; x.rows];
     let run = run_fixed(&blob, &x, &p)?;
     write_matrix(&dir.join("inputs.npy"), &x)?;
     write_vector(&dir.join("phases.npy"), &p)?;

@@ -6,6 +6,7 @@ pub mod compare;
 pub mod controller;
 pub mod default_model;
 pub mod demo;
+pub mod demo_omg;
 pub mod eval;
 pub mod golden;
 pub mod npy;

@@ -7,7 +7,7 @@ use exporter::net::{GatingMode, Net};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use host_sim::{accuracy, compare, default_model, demo, eval, golden, npy};
+use host_sim::{accuracy, compare, demo, eval, golden, npy};
 
 #[derive(Parser)]
 #[command(
@@ -64,12 +64,19 @@ enum Command {
     },
     /// The main job: the embedded default model (or the real PFNN) fixed vs float.
     Demo {
-        /// Run on a PFNN weight directory instead (int8 cubic blob built in memory).
+        /// Run on a PFNN weight directory instead (int8 cubic blob built in
+        /// memory, fixed vs float on sampled inputs).
         #[arg(long)]
         pfnn: Option<PathBuf>,
-        /// Frames to run.
+        /// Frames to run (--pfnn).
         #[arg(long, default_value_t = 300)]
         frames: usize,
+        /// Where to write the picture of the reaching run.
+        #[arg(long, default_value = "target/phasegate-demo/omg-reach.png")]
+        picture: PathBuf,
+        /// Do not run the blob on the Cortex-M4 under QEMU.
+        #[arg(long)]
+        no_target: bool,
     },
     /// Fixed vs float accuracy of int16 and int8 cubic blobs on a PFNN, vs the demo's own error.
     Accuracy {
@@ -263,24 +270,21 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Demo { pfnn, frames } => {
-            let (blob, net, title) = match pfnn {
-                None => (
-                    default_model::BLOB.to_vec(),
-                    default_model::float_model()?,
-                    "embedded default model (PFNN-shaped, hidden 32, int8 cubic)".to_string(),
-                ),
-                Some(dir) => {
-                    let tables = exporter::pfnn_dir::load_pfnn_dir_auto(&dir, None)?;
-                    let (net, residual) = Net::from_pfnn_tables(&tables, GatingMode::Cubic);
-                    let (blob, _) = exporter::export::export(&net, residual, &Default::default())?;
-                    (
-                        blob,
-                        net,
-                        format!("PFNN from {} (int8 cubic)", dir.display()),
-                    )
-                }
+        Command::Demo {
+            pfnn,
+            frames,
+            picture,
+            no_target,
+        } => {
+            let Some(dir) = pfnn else {
+                let d = host_sim::demo_omg::run_demo(Some(&picture), no_target)?;
+                print!("{}", d.render());
+                return Ok(());
             };
+            let tables = exporter::pfnn_dir::load_pfnn_dir_auto(&dir, None)?;
+            let (net, residual) = Net::from_pfnn_tables(&tables, GatingMode::Cubic);
+            let (blob, _) = exporter::export::export(&net, residual, &Default::default())?;
+            let title = format!("PFNN from {} (int8 cubic)", dir.display());
             print!(
                 "{}",
                 demo::run_demo(&blob, &net, frames, 11)?.render(&title)

@@ -20,6 +20,7 @@ use serde::Serialize;
 
 use crate::omg::{diff, load_dir, rollout, Diff, FixedOmg, FloatOmg, Mode, OmgDir};
 use crate::quant_knobs::Int8Knobs;
+use exporter::net::omg::OmgConfig;
 use exporter::quantise::QuantOptions;
 
 /// The data's contact threshold: a hand this close to its target reached it.
@@ -121,13 +122,12 @@ pub struct TargetStats {
 
 /// [`TargetStats`] of one clip's frames `y` against the clip's own targets.
 pub fn reach_stats(
-    d: &OmgDir,
+    cfg: &OmgConfig,
     y: &[Vec<f64>],
     clip: &[Vec<f64>],
     reps: usize,
     s: &mut TargetStats,
 ) {
-    let cfg = &d.omg.config;
     let (pos, tpos) = (cfg.slice("pos"), cfg.slice("target_pos"));
     for h in 0..2.min(cfg.key) {
         let j = cfg.key_joint_indices[h];
@@ -156,8 +156,8 @@ pub fn reach_stats(
 
 /// `sqrt(mean_t dr_t^2)` of one clip: dr_t the mean over joints and over
 /// the forward and up vectors of the angle between frames t and t + 1.
-pub fn rms_roughness(d: &OmgDir, y: &[Vec<f64>]) -> f64 {
-    let rot = d.omg.config.slice("rot");
+pub fn rms_roughness(cfg: &OmgConfig, y: &[Vec<f64>]) -> f64 {
+    let rot = cfg.slice("rot");
     let unit = |v: &[f64]| {
         let n = v.iter().map(|a| a * a).sum::<f64>().sqrt().max(1e-8);
         [v[0] / n, v[1] / n, v[2] / n]
@@ -214,7 +214,8 @@ pub struct OmgReach {
     pub rows: Vec<ReachRow>,
 }
 
-fn median(v: &[usize]) -> Option<f64> {
+/// The median of `v`; `None` when empty.
+pub fn median(v: &[usize]) -> Option<f64> {
     let mut v = v.to_vec();
     v.sort_unstable();
     let n = v.len();
@@ -235,7 +236,7 @@ fn mean(v: impl IntoIterator<Item = f64>) -> f64 {
 fn row(d: &OmgDir, run: &str, blob_bytes: usize, held: &HeldOut, ys: &[Vec<Vec<f64>>]) -> ReachRow {
     let mut s = TargetStats::default();
     for ((y, clip), &reps) in ys.iter().zip(&held.clips).zip(&held.reps) {
-        reach_stats(d, y, clip, reps, &mut s);
+        reach_stats(&d.omg.config, y, clip, reps, &mut s);
     }
     let pos = d.omg.config.slice("pos");
     let joint_err = ys.iter().zip(&held.clips).flat_map(|(y, c)| {
@@ -257,7 +258,7 @@ fn row(d: &OmgDir, run: &str, blob_bytes: usize, held: &HeldOut, ys: &[Vec<Vec<f
         frames_median: median(&s.frames),
         final_m: mean(s.final_m.iter().copied()),
         joint_vs_data_cm: 100.0 * mean(joint_err),
-        rms: mean(ys.iter().map(|y| rms_roughness(d, y))),
+        rms: mean(ys.iter().map(|y| rms_roughness(&d.omg.config, y))),
         vs_f64: None,
     }
 }

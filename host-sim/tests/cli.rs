@@ -96,19 +96,30 @@ fn eval_reference_and_compare() {
 }
 
 #[test]
-fn demo_prints_the_error_table_and_figures() {
-    let o = host_sim(&["demo", "--frames", "200"]);
+fn demo_runs_the_trained_omg_model_and_draws_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let png = tmp.path().join("reach.png");
+    let o = host_sim(&["demo", "--no-target", "--picture", s(&png)]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.starts_with("embedded default model: trained tiny FE-OMG reaching model"),
+        "{text}"
+    );
     for needle in [
-        "200 frames",
-        "overall",
-        "blob size        102064 bytes",
-        "RAM needed",
-        "MACs per frame   87680",
+        "300 frames",
+        "float       2/4",
+        "fixed vs float joint positions: p99",
+        "blob size        153568 bytes",
+        "RAM              2152 bytes of activations",
+        "MACs per frame   131680",
+        "Cortex-M4        not measured here: skipped (--no-target)",
+        "picture",
     ] {
         assert!(text.contains(needle), "{needle}: {text}");
     }
+    let bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&bytes[1..4], b"PNG");
 }
 
 #[test]

@@ -60,14 +60,7 @@ fn golden_files_regenerate_byte_for_byte() {
     let tmp = tempfile::tempdir().unwrap();
     for case in host_sim::golden::CASES {
         host_sim::golden::write_case(case, &tmp.path().join(case)).unwrap();
-        for name in [
-            "model.npz",
-            "model.blob",
-            "inputs.npy",
-            "phases.npy",
-            "expected_q.npy",
-            "expected.npy",
-        ] {
+        for name in host_sim::golden::files(case) {
             let fresh = std::fs::read(tmp.path().join(case).join(name)).unwrap();
             let checked_in = std::fs::read(golden_root().join(case).join(name)).unwrap();
             assert!(

@@ -663,6 +663,15 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     })
 }
 
+/// An OMG model from the bytes of its `model.safetensors` and the text of
+/// its `config.json` (models embedded in a binary); errors name neither
+/// file, [`read_omg`] adds the names.
+pub fn omg_from_bytes(weights: &[u8], config: &str) -> Result<OmgNet> {
+    let cfg: OmgConfig = serde_json::from_str(config).context("not an OMG config")?;
+    let arrays = crate::cp::import::parse_safetensors(weights)?;
+    net_from_omg(&cfg, &arrays)
+}
+
 /// Reads an OMG model: `config` (`config.json`) and `weights`
 /// (`model.safetensors`). Every error is one line naming the file.
 pub fn read_omg(weights: &Path, config: &Path) -> Result<OmgNet> {

@@ -230,7 +230,7 @@ fn draw_bones(
 /// Grid lines and tick labels of a frame; axis titles under and beside it.
 /// With `negate_x` the frame's x is minus the data's (the top view draws +x
 /// to the left) and the labels show the data's value.
-fn grid(c: &mut Canvas, fr: &Frame2, xlabel: &str, ylabel: &str, negate_x: bool) {
+pub(crate) fn grid(c: &mut Canvas, fr: &Frame2, xlabel: &str, ylabel: &str, negate_x: bool) {
     let (l, t, r, b) = fr.px;
     let xt = ticks(fr.x.0, fr.x.1, 8);
     let yt = ticks(fr.y.0, fr.y.1, 5);

@@ -1,0 +1,443 @@
+//! `host-sim demo`: the embedded default model, the trained tiny FE-OMG
+//! reaching model (`models/omg/tiny_fe_r1`, compiled into the binary),
+//! driven by the targets of a held-out test clip for both hands, in fixed
+//! point (its int8 blob on the runtime) beside float (the f64 graph), both
+//! through the controller's reaching loop. Prints reach success and frames
+//! to reach, the fixed-vs-float joint error, blob size, RAM, MACs, and the
+//! Cortex-M4's instructions per frame measured under QEMU when it can be;
+//! draws the skeleton, the targets and the hand paths.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, Context, Result};
+use exporter::net::omg::{omg_from_bytes, OmgConfig, OmgNet, HEADROOM};
+use exporter::quantise::QuantOptions;
+use phasegate::blob::WeightFormat;
+
+use crate::omg::{diff, rollout, Diff, FixedOmg, FloatOmg, Mode};
+use crate::omg_reach::{median, reach_stats, TargetStats};
+use crate::render::canvas::{Canvas, Frame2, Rgb, BLACK, BLUE, GREEN, GREY, ORANGE, WHITE};
+
+const WEIGHTS: &[u8] = include_bytes!("../../models/omg/tiny_fe_r1/model.safetensors");
+const CONFIG: &str = include_str!("../../models/omg/tiny_fe_r1/config.json");
+const INPUTS: &[u8] = include_bytes!("../../models/omg/tiny_fe_r1/ref_inputs.npy");
+const TARGETS: &[u8] = include_bytes!("../../models/omg/tiny_fe_r1/ref_rollout_targets.npy");
+const RIG: &str = include_str!("../../models/omg/tiny_fe_r1/rig.json");
+
+/// Frames of the demo's clip (5 s at 60 fps).
+pub const FRAMES: usize = 300;
+/// Frames run on the Cortex-M4 under QEMU for the instruction count.
+pub const TARGET_FRAMES: usize = 30;
+
+/// An f32 array from the bytes of an `.npy` file.
+fn npy_f32(bytes: &[u8]) -> Result<(Vec<u64>, Vec<f32>)> {
+    exporter::npz::check_npy_header(bytes)?;
+    let f = npyz::NpyFile::new(bytes)?;
+    let shape = f.shape().to_vec();
+    Ok((shape, f.into_vec::<f32>()?))
+}
+
+/// The embedded model, its rig's joint parents, the clip's first frame
+/// and its per-frame target blocks.
+pub struct Embedded {
+    /// The imported model.
+    pub omg: OmgNet,
+    /// Parent of each joint (-1 for the root).
+    pub parents: Vec<i64>,
+    /// Frame 0 of the held-out clip.
+    pub first: Vec<f64>,
+    /// Its target block at every frame.
+    pub targets: Vec<Vec<f64>>,
+}
+
+/// The first `n` frames of the embedded reference inputs (held-out test
+/// clips, clip after clip), f32, as a matrix.
+pub fn reference_frames(n: usize) -> Result<crate::npy::Matrix<f32>> {
+    let (shape, data) = npy_f32(INPUTS)?;
+    let cols = shape[2] as usize;
+    let rows = n.min(data.len() / cols.max(1));
+    Ok(crate::npy::Matrix {
+        rows,
+        cols,
+        data: data[..rows * cols].to_vec(),
+    })
+}
+
+/// The int8 blob `host-sim demo` runs (and the golden case
+/// `omg-tiny-fe-r1` holds).
+pub fn int8_blob(omg: &OmgNet) -> Result<Vec<u8>> {
+    let opts = QuantOptions {
+        weights: WeightFormat::I8,
+        headroom: HEADROOM,
+        ..QuantOptions::default()
+    };
+    Ok(exporter::export::export(&omg.net, None, &opts)?.0)
+}
+
+/// Loads what `host-sim demo` runs, from the bytes compiled in.
+pub fn embedded() -> Result<Embedded> {
+    let omg = omg_from_bytes(WEIGHTS, CONFIG).context("embedded OMG model")?;
+    let rig: serde_json::Value = serde_json::from_str(RIG)?;
+    let parents = rig["parents"]
+        .as_array()
+        .ok_or_else(|| anyhow!("embedded rig.json has no parents"))?
+        .iter()
+        .map(|v| {
+            v.as_i64()
+                .ok_or_else(|| anyhow!("embedded rig.json: bad parent"))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let (ishape, inputs) = npy_f32(INPUTS)?;
+    let (tshape, targets) = npy_f32(TARGETS)?;
+    let (n, t) = (ishape[2] as usize, tshape[2] as usize);
+    let frames = (tshape[1] as usize).min(FRAMES);
+    Ok(Embedded {
+        first: inputs[..n].iter().map(|&v| f64::from(v)).collect(),
+        targets: (0..frames)
+            .map(|f| {
+                targets[f * t..(f + 1) * t]
+                    .iter()
+                    .map(|&v| f64::from(v))
+                    .collect()
+            })
+            .collect(),
+        omg,
+        parents,
+    })
+}
+
+/// What the demo measured for one way of running the model.
+pub struct Run {
+    /// Every frame.
+    pub frames: Vec<Vec<f64>>,
+    /// Per hand target.
+    pub stats: TargetStats,
+}
+
+/// Instructions per frame on the Cortex-M4, or why they were not measured.
+pub enum Measured {
+    /// Median instructions of the inference per frame, frames, bit-exact.
+    Qemu {
+        /// Median instructions per frame of the inference.
+        instructions: u64,
+        /// Frames run.
+        frames: usize,
+        /// Outputs that differed from the host runtime.
+        mismatches: usize,
+    },
+    /// Not measured, and why.
+    Not(String),
+}
+
+/// Everything `host-sim demo` prints.
+pub struct OmgDemo {
+    /// Float and fixed point.
+    pub float: Run,
+    /// The int8 blob.
+    pub fixed: Run,
+    /// Fixed vs float joints.
+    pub diff: Diff,
+    /// Blob bytes.
+    pub blob_bytes: usize,
+    /// Activation RAM of the blob, bytes.
+    pub ram_bytes: usize,
+    /// The controller's own state on the device (`Reach<f32, 448>`), bytes.
+    pub state_bytes: usize,
+    /// MACs per frame (header).
+    pub macs: u32,
+    /// The Cortex-M4 figure.
+    pub target: Measured,
+    /// The picture, if written.
+    pub picture: Option<PathBuf>,
+    /// Joints, key joints, frames.
+    pub shape: (usize, usize, usize),
+}
+
+fn run(e: &Embedded, net: &mut impl phasegate_controller::Network<f64>) -> Result<Run> {
+    let t: Vec<&[f64]> = e.targets.iter().map(Vec::as_slice).collect();
+    let frames = rollout(&e.omg, &e.first, &t, Mode::Grounded, net)?;
+    // The data's frames, for the targets: the first frame's pose with each
+    // frame's target block.
+    let range = e.omg.config.slice("target");
+    let clip: Vec<Vec<f64>> = e
+        .targets
+        .iter()
+        .map(|tb| {
+            let mut f = e.first.clone();
+            f[range.clone()].copy_from_slice(tb);
+            f
+        })
+        .collect();
+    let mut stats = TargetStats::default();
+    reach_stats(&e.omg.config, &frames, &clip, usize::MAX, &mut stats);
+    Ok(Run { frames, stats })
+}
+
+/// Runs the demo; the picture goes to `picture` unless `None`, QEMU runs
+/// unless `skip_target`.
+pub fn run_demo(picture: Option<&Path>, skip_target: bool) -> Result<OmgDemo> {
+    let e = embedded()?;
+    let blob = int8_blob(&e.omg)?;
+    let model = phasegate::Model::from_bytes(&blob).map_err(|err| anyhow!("blob: {err}"))?;
+    let float = run(&e, &mut FloatOmg(&e.omg))?;
+    let fixed = run(&e, &mut FixedOmg::new(&blob)?)?;
+    let d = diff(&e.omg, &fixed.frames, &float.frames);
+    let target = if skip_target {
+        Measured::Not("skipped (--no-target)".into())
+    } else {
+        measure_on_target(&blob, &fixed.frames)
+    };
+    let picture = match picture {
+        Some(p) => {
+            draw(&e, &float, &fixed, p)?;
+            Some(p.to_path_buf())
+        }
+        None => None,
+    };
+    let cfg = &e.omg.config;
+    Ok(OmgDemo {
+        diff: d,
+        blob_bytes: blob.len(),
+        ram_bytes: model.ram_bytes(),
+        state_bytes: phasegate_controller::Reach::<f32, 448>::STATE_RAM_BYTES,
+        macs: model.macs_per_frame(),
+        target,
+        picture,
+        shape: (cfg.joints, cfg.key, float.frames.len()),
+        float,
+        fixed,
+    })
+}
+
+/// The blob under QEMU on the fixed rollout's own frames (inputs), bit for
+/// bit against the host runtime.
+fn measure_on_target(blob: &[u8], frames: &[Vec<f64>]) -> Measured {
+    if !crate::target::qemu_available() {
+        return Measured::Not("qemu-system-arm is not installed".into());
+    }
+    let go = || -> Result<Measured> {
+        let dir = scratch_dir();
+        std::fs::create_dir_all(&dir).with_context(|| format!("{}", dir.display()))?;
+        let model = dir.join("omg-demo.blob");
+        std::fs::write(&model, blob)?;
+        let n = TARGET_FRAMES.min(frames.len());
+        let width = frames.first().map_or(0, Vec::len);
+        let x = crate::npy::Matrix {
+            rows: n,
+            cols: width,
+            data: frames[..n]
+                .iter()
+                .flatten()
+                .map(|&v| v as f32)
+                .collect::<Vec<_>>(),
+        };
+        let inputs = dir.join("omg-demo-inputs.npy");
+        crate::npy::write_matrix(&inputs, &x)?;
+        let phases = dir.join("omg-demo-phases.npy");
+        crate::npy::write_vector(&phases, &vec![0f32; n])?;
+        let r = crate::target::execute(&crate::target::TargetArgs {
+            model,
+            frames: Some(n),
+            inputs: Some(inputs),
+            phases: Some(phases),
+            ..Default::default()
+        })?;
+        Ok(Measured::Qemu {
+            instructions: r.infer_instructions.median,
+            frames: r.frames,
+            mismatches: r.mismatches,
+        })
+    };
+    let dir = scratch_dir();
+    let m = go().unwrap_or_else(|err| Measured::Not(format!("{err:#}")));
+    // Best effort: a scratch directory left behind is harmless.
+    let _ = std::fs::remove_dir_all(dir);
+    m
+}
+
+/// The scratch directory of the QEMU run's files.
+fn scratch_dir() -> PathBuf {
+    std::env::temp_dir().join(format!("phasegate-demo-{}", std::process::id()))
+}
+
+fn rate(s: &TargetStats) -> String {
+    let n = s.reached.len();
+    let k = s.reached.iter().filter(|&&r| r).count();
+    format!("{k}/{n} ({:.0} %)", 100.0 * k as f64 / n.max(1) as f64)
+}
+
+impl OmgDemo {
+    /// The text `host-sim demo` prints.
+    pub fn render(&self) -> String {
+        let (j, k, f) = self.shape;
+        let mut s = format!(
+            "embedded default model: trained tiny FE-OMG reaching model (models/omg/tiny_fe_r1; rig R1, \
+             {j} joints, {k} key joints), int8 blob\n\
+             {f} frames (5 s at 60 fps) of a held-out test clip's targets for both hands, through the \
+             reaching controller (grounded costs), fixed point (runtime) beside float (f64):\n\n"
+        );
+        s += "            targets reached (within 0.1 m in time)   frames to reach (median)   final distance (mean)\n";
+        for (name, r) in [("float", &self.float), ("fixed", &self.fixed)] {
+            s += &format!(
+                "{name:<11} {:<40} {:<26} {:.3} m\n",
+                rate(&r.stats),
+                median(&r.stats.frames).map_or("-".into(), |m| format!("{m:.0}")),
+                r.stats.final_m.iter().sum::<f64>() / r.stats.final_m.len().max(1) as f64
+            );
+        }
+        s += &format!(
+            "\nfixed vs float joint positions: p99 {:.2} cm, max {:.2} cm, mean {:.2} cm\n",
+            100.0 * self.diff.p99_joint_m,
+            100.0 * self.diff.max_joint_m,
+            100.0 * self.diff.mean_joint_m
+        );
+        s += &format!(
+            "blob size        {} bytes (flash)\n\
+             RAM              {} bytes of activations + {} bytes of controller state (Reach<f32, 448>)\n\
+             MACs per frame   {}\n",
+            self.blob_bytes, self.ram_bytes, self.state_bytes, self.macs
+        );
+        s += &match &self.target {
+            Measured::Qemu {
+                instructions,
+                frames,
+                mismatches,
+            } => format!(
+                "Cortex-M4        {instructions} instructions per frame (measured under QEMU, {frames} frames, {}), \
+                 {:.1} ms at 168 MHz if one instruction per cycle\n",
+                if *mismatches == 0 {
+                    "bit-exact with the host".to_string()
+                } else {
+                    format!("{mismatches} outputs NOT bit-exact")
+                },
+                *instructions as f64 / 168e3
+            ),
+            Measured::Not(why) => format!(
+                "Cortex-M4        not measured here: {why} (`host-sim target` measures it; docs/omg.md has the figures)\n"
+            ),
+        };
+        if let Some(p) = &self.picture {
+            s += &format!("picture          {}\n", p.display());
+        }
+        s += "(the model itself reaches poorly, in float too: models/omg/README.md; `host-sim omg-reach` for all held-out clips)\n";
+        s
+    }
+}
+
+/// Front view (x right, y up, root space) with the skeleton at a few
+/// frames, both hands' paths (float and fixed) and the targets.
+fn draw(e: &Embedded, float: &Run, fixed: &Run, path: &Path) -> Result<()> {
+    let cfg: &OmgConfig = &e.omg.config;
+    let (pos, tpos) = (cfg.slice("pos"), cfg.slice("target_pos"));
+    let joint = |f: &[f64], j: usize| (f[pos.start + 3 * j], f[pos.start + 3 * j + 1]);
+    let (mut lo, mut hi) = ((f64::MAX, f64::MAX), (f64::MIN, f64::MIN));
+    let mut grow = |p: (f64, f64)| {
+        lo = (lo.0.min(p.0), lo.1.min(p.1));
+        hi = (hi.0.max(p.0), hi.1.max(p.1));
+    };
+    for f in float.frames.iter().chain(&fixed.frames) {
+        for j in 0..cfg.joints {
+            grow(joint(f, j));
+        }
+    }
+    for tb in &e.targets {
+        let off = tpos.start - cfg.slice("target").start;
+        for h in 0..2 {
+            grow((tb[off + 3 * h], tb[off + 3 * h + 1]));
+        }
+    }
+    let (w, h) = (900usize, 760usize);
+    let mut c = Canvas::new(w, h, WHITE);
+    let pad = 0.08;
+    let fr = Frame2::new(
+        (70.0, 60.0, w as f64 - 30.0, h as f64 - 110.0),
+        (lo.0 - pad, hi.0 + pad),
+        (lo.1 - pad, hi.1 + pad),
+        true,
+    );
+    crate::render::grid(&mut c, &fr, "x (m, root space)", "y (m)", false);
+    c.text(
+        70.0,
+        20.0,
+        "tiny FE-OMG reaching a held-out clip's targets: front view",
+        2,
+        BLACK,
+    );
+    // Skeletons of the fixed run at a few frames, lighter when earlier.
+    let snaps = crate::render::snapshot_frames(fixed.frames.len(), 5);
+    for (i, &t) in snaps.iter().enumerate() {
+        let shade = (200.0 - 160.0 * i as f64 / (snaps.len().max(2) - 1) as f64) as u8;
+        let col: Rgb = [shade, shade, shade];
+        let f = &fixed.frames[t];
+        for (j, &p) in e.parents.iter().enumerate() {
+            if let Ok(p) = usize::try_from(p) {
+                c.line(
+                    fr.map(joint(f, j).0, joint(f, j).1),
+                    {
+                        let q = joint(f, p);
+                        fr.map(q.0, q.1)
+                    },
+                    2.0,
+                    col,
+                );
+            }
+        }
+    }
+    // Hand paths.
+    // Float wider underneath, so that where the two agree both show.
+    for (run, col, width) in [(float, ORANGE, 4.0), (fixed, BLUE, 1.5)] {
+        for &kj in cfg.key_joint_indices.iter().take(2) {
+            let pts: Vec<(f64, f64)> = run
+                .frames
+                .iter()
+                .map(|f| {
+                    let p = joint(f, kj);
+                    fr.map(p.0, p.1)
+                })
+                .collect();
+            c.polyline(&pts, width, col);
+        }
+    }
+    // Targets (each distinct one once).
+    let off = tpos.start - cfg.slice("target").start;
+    let mut seen: Vec<(f64, f64)> = Vec::new();
+    for tb in &e.targets {
+        for h in 0..2 {
+            let p = (tb[off + 3 * h], tb[off + 3 * h + 1]);
+            if !seen
+                .iter()
+                .any(|q| (q.0 - p.0).abs() < 1e-6 && (q.1 - p.1).abs() < 1e-6)
+            {
+                seen.push(p);
+                let (x, y) = fr.map(p.0, p.1);
+                c.disc(x, y, 7.0, GREEN);
+                let r = fr.map(p.0 + 0.1, p.1);
+                let rad = (r.0 - x).abs();
+                for a in 0..64 {
+                    let t = a as f64 / 64.0 * std::f64::consts::TAU;
+                    c.disc(x + rad * t.cos(), y + rad * t.sin(), 1.0, GREEN);
+                }
+            }
+        }
+    }
+    // Legend.
+    let ly = h as f64 - 60.0;
+    let items: [(&str, Rgb); 4] = [
+        ("hand paths, fixed point (int8)", BLUE),
+        ("hand paths, float (f64)", ORANGE),
+        ("targets and their 0.1 m reach radius", GREEN),
+        ("skeleton (fixed) at 5 frames, darker = later", GREY),
+    ];
+    for (i, (label, col)) in items.iter().enumerate() {
+        let x = 70.0 + (i % 2) as f64 * 420.0;
+        let y = ly + (i / 2) as f64 * 22.0;
+        c.line((x, y + 4.0), (x + 30.0, y + 4.0), 3.0, *col);
+        c.text(x + 38.0, y, label, 1, BLACK);
+    }
+    if let Some(dir) = path.parent() {
+        if !dir.as_os_str().is_empty() {
+            std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
+        }
+    }
+    c.save_png(path)
+}
