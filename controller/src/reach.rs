@@ -445,15 +445,19 @@ mod tests {
         assert!((c[3] - 0.5).abs() < 1e-12 && c[4].abs() < 1e-12 && (c[5] - 0.5).abs() < 1e-12);
     }
 
-    #[test]
-    fn a_step_places_the_blocks_and_grounds_the_costs_on_the_new_target() {
-        let mut net = Shift {
+    fn shift_and_reach(mode: CostMode) -> (Shift, Reach<f64, 40>) {
+        let net = Shift {
             shift: 0.1,
             calls: 0,
             fail: false,
         };
-        let mut r: Reach<f64, 40> =
-            Reach::new(&net, layout(), CostMode::Grounded, &first()).unwrap();
+        let r = Reach::new(&net, layout(), mode, &first()).unwrap();
+        (net, r)
+    }
+
+    #[test]
+    fn a_step_places_the_blocks_and_grounds_the_costs_on_the_new_target() {
+        let (mut net, mut r) = shift_and_reach(CostMode::Grounded);
         let t = Target {
             position: [1.0, 2.0, 3.0],
             forward: [0.0, 0.0, 2.0],
@@ -477,13 +481,7 @@ mod tests {
 
     #[test]
     fn bad_targets_and_failed_frames_change_nothing() {
-        let mut net = Shift {
-            shift: 0.1,
-            calls: 0,
-            fail: false,
-        };
-        let mut r: Reach<f64, 40> =
-            Reach::new(&net, layout(), CostMode::Grounded, &first()).unwrap();
+        let (mut net, mut r) = shift_and_reach(CostMode::Grounded);
         let ok = Target {
             position: [0.1, 0.2, 0.3],
             forward: [0.0, 0.0, 1.0],

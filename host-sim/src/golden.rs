@@ -118,12 +118,7 @@ pub fn write_case(case: &str, dir: &Path) -> Result<()> {
     let (blob, _) = export(&net, None, &opts)?;
     exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
     let (x, p) = sample_matrix(&net, FRAMES, 1.0, INPUT_SEED);
-    let run = run_fixed(&blob, &x, &p)?;
-    write_matrix(&dir.join("inputs.npy"), &x)?;
-    write_vector(&dir.join("phases.npy"), &p)?;
-    write_matrix(&dir.join("expected_q.npy"), &run.raw)?;
-    write_matrix(&dir.join("expected.npy"), &run.outputs)?;
-    Ok(())
+    write_frames(dir, &blob, &x, &p)
 }
 
 fn write_omg_case(dir: &Path) -> Result<()> {
@@ -132,10 +127,14 @@ fn write_omg_case(dir: &Path) -> Result<()> {
     let blob = crate::demo_omg::int8_blob(&e.omg)?;
     exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
     let x = crate::demo_omg::reference_frames(FRAMES)?;
-    let p = vec![0f32; x.rows];
-    let run = run_fixed(&blob, &x, &p)?;
-    write_matrix(&dir.join("inputs.npy"), &x)?;
-    write_vector(&dir.join("phases.npy"), &p)?;
+    write_frames(dir, &blob, &x, &vec![0f32; x.rows])
+}
+
+/// Inputs, phases and the outputs `blob` gives on them.
+fn write_frames(dir: &Path, blob: &[u8], x: &crate::npy::Matrix<f32>, p: &[f32]) -> Result<()> {
+    let run = run_fixed(blob, x, p)?;
+    write_matrix(&dir.join("inputs.npy"), x)?;
+    write_vector(&dir.join("phases.npy"), p)?;
     write_matrix(&dir.join("expected_q.npy"), &run.raw)?;
     write_matrix(&dir.join("expected.npy"), &run.outputs)?;
     Ok(())
