@@ -1458,3 +1458,40 @@ fn controller_refuses_a_damaged_deadline_block() {
     let last = booted.log.last().cloned().unwrap_or_default();
     assert!(last.contains("deadline block refused"), "{last}");
 }
+
+/// The exporter's cost model (`exporter::cost`) against the firmware: on
+/// every golden blob the estimate is within the model's stated tolerance
+/// of the measured whole frame (`Runtime::run`'s three stages).
+#[test]
+fn cost_estimate_tracks_qemu() {
+    let name = "cost_estimate_tracks_qemu";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    if golden_or_skip(name).is_none() {
+        return;
+    }
+    for case in ["default", "dense-int16", "softmax-graph", "cp-diagonal"] {
+        let blob = frames::golden_root().join(case).join("model.blob");
+        let report = execute(&TargetArgs {
+            model: blob.clone(),
+            frames: Some(8),
+            inputs: None,
+            phases: None,
+            styles: vec![],
+            mix: None,
+        })
+        .unwrap();
+        let bytes = std::fs::read(&blob).unwrap();
+        let estimate = exporter::cost::estimate_instructions(&Model::from_bytes(&bytes).unwrap());
+        let measured = report.frame_instructions.median;
+        println!(
+            "{case}: estimated {estimate}, measured {measured} instructions per frame ({:+.1} %)",
+            (estimate as f64 / measured as f64 - 1.0) * 100.0
+        );
+        assert!(
+            estimate.abs_diff(measured) * 100 <= exporter::cost::TOLERANCE_PERCENT * measured,
+            "{case}: estimated {estimate}, measured {measured}"
+        );
+    }
+}
