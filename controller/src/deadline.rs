@@ -74,8 +74,10 @@ pub enum OverrunPolicy {
     /// were, and the held frame's command is not applied (not even
     /// checked). Time stands still for the character for one frame; the
     /// next inferred frame continues from exactly where the overrunning
-    /// frame left it. The held frame is timed too; it cannot overrun a
-    /// budget any inferred frame meets.
+    /// frame left it. The held frame is timed and reported too, but never
+    /// causes another hold (with a budget below even a held frame's cost,
+    /// holding again would stop the character for good): at least every
+    /// other frame infers.
     HoldNext,
 }
 
@@ -213,7 +215,9 @@ impl<P: OutputPin, T: TickSource> Deadline<P, T> {
         let ticks = u32::try_from(t1.saturating_sub(t0)).unwrap_or(u32::MAX);
         let overrun = self.config.budget.is_some_and(|b| ticks > b.ticks());
         let held = action == FrameAction::Hold;
-        self.next = if overrun && self.config.policy == OverrunPolicy::HoldNext {
+        // A held frame that overran is not followed by another hold: that
+        // could hold forever, and at least every other frame must infer.
+        self.next = if overrun && !held && self.config.policy == OverrunPolicy::HoldNext {
             FrameAction::Hold
         } else {
             FrameAction::Infer

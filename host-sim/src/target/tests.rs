@@ -297,7 +297,7 @@ fn output_records_round_trip() {
         ..h
     };
     assert_eq!(wire::OutputHeader::parse(&c.encode()), Ok(c));
-    assert_eq!(c.record_len(), 12 + 4 * 231);
+    assert_eq!(c.record_len(), 16 + 4 * 231);
     assert_eq!(&c.encode()[24..28], &1u32.to_le_bytes());
 }
 
