@@ -56,6 +56,18 @@ pub enum Error {
         /// Values the buffers hold.
         capacity: u32,
     },
+    /// A frame budget of 0 ticks (or more than `u32::MAX`, given in
+    /// instructions): no frame could meet it; configure no budget instead.
+    BadBudget {
+        /// The budget asked for, in ticks.
+        ticks: u32,
+    },
+    /// An overrun policy number that names no policy (0 report, 1 hold
+    /// next).
+    BadPolicy {
+        /// The number.
+        value: u32,
+    },
 }
 
 /// Result with the controller's [`Error`].
@@ -90,6 +102,14 @@ impl fmt::Display for Error {
             Error::TooWide { width, capacity } => write!(
                 f,
                 "frames of {width} values do not fit the controller's {capacity}-value buffers"
+            ),
+            Error::BadBudget { ticks } => write!(
+                f,
+                "frame budget of {ticks} ticks refused: it must be at least 1 tick and fit in 32 bits"
+            ),
+            Error::BadPolicy { value } => write!(
+                f,
+                "overrun policy {value} is unknown (0 report, 1 hold next)"
             ),
         }
     }

@@ -27,6 +27,7 @@
 )]
 
 mod command;
+pub mod deadline;
 mod error;
 pub mod geom;
 pub mod layout;
@@ -38,6 +39,10 @@ mod real;
 pub mod trajectory;
 
 pub use command::{field, Command, Gait, GaitWeights, MAX_SPEED, MIN_FACING};
+pub use deadline::{
+    Deadline, DeadlineConfig, FrameAction, FrameBudget, FrameOutcome, OverrunPolicy, TickSource,
+    TimedFrame,
+};
 pub use error::{Error, Result};
 pub use locomotion::{rates, Locomotion, Network};
 pub use pfnn::{phase_from_cycles, PfnnController};

@@ -16,6 +16,7 @@
 //! 8. advance the phase.
 
 use crate::command::{Checked, Command};
+use crate::deadline::FrameAction;
 use crate::error::{Error, Result};
 use crate::geom::{
     canonical, len2, mix_directions, quat_exp, quat_mul, unyaw3, yaw3, yaw_quat, Vec2, Vec3,
@@ -207,6 +208,26 @@ impl<R: Real> Locomotion<R> {
         let rate = moving * R::lit(0.9) + R::lit(0.1);
         self.phase = wrap_cycle(self.phase + rate * y.phase_change);
         Ok(&self.pose)
+    }
+
+    /// One frame as a [`crate::Deadline`] allows it: [`FrameAction::Infer`]
+    /// is [`Locomotion::step`]; [`FrameAction::Hold`] (the frame after an
+    /// overrun under [`crate::OverrunPolicy::HoldNext`]) changes nothing
+    /// and returns the last pose again: the phase, the trajectory, the
+    /// joint velocities, the smoothed targets and the pose's `frame`
+    /// counter stay as they were, and `command` is neither checked nor
+    /// applied. The firmware and the host's replay both step through
+    /// here, so a held frame means the same on both.
+    pub fn frame(
+        &mut self,
+        net: &mut impl Network<R>,
+        action: FrameAction,
+        command: &Command,
+    ) -> Result<&Pose<R>> {
+        match action {
+            FrameAction::Infer => self.step(net, command),
+            FrameAction::Hold => Ok(&self.pose),
+        }
     }
 
     /// Steps 1 and 2: smooth the command into targets, blend the gaits.

@@ -4,6 +4,7 @@
 use phasegate::{Model, Phase, Runtime};
 
 use crate::command::Command;
+use crate::deadline::FrameAction;
 use crate::error::{Error, Result};
 use crate::locomotion::{Locomotion, Network};
 use crate::pose::Pose;
@@ -62,6 +63,12 @@ impl<N: Network<f32>> PfnnController<N> {
     /// One frame: command in, pose out. See [`Locomotion::step`].
     pub fn step(&mut self, command: &Command) -> Result<&Pose<f32>> {
         self.state.step(&mut self.net, command)
+    }
+
+    /// One frame as a [`crate::Deadline`] allows it: see
+    /// [`Locomotion::frame`] (a held frame changes nothing).
+    pub fn frame(&mut self, action: FrameAction, command: &Command) -> Result<&Pose<f32>> {
+        self.state.frame(&mut self.net, action, command)
     }
 
     /// Back to the reset pose at the origin.

@@ -44,6 +44,10 @@ pub struct ExportReport {
     /// Where `--int16-budget` went, when given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub int16_budget: Option<crate::budget::BudgetReport>,
+    /// The estimated cost per frame against `--budget-instructions`, when
+    /// given (`crate::cost`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub frame_budget: Option<crate::cost::BudgetCheck>,
 }
 
 /// JSON form of [`Residual`].
@@ -126,6 +130,7 @@ pub fn export(
         layers: q.layers,
         options: opts.clone(),
         int16_budget: None,
+        frame_budget: None,
     };
     Ok((blob, report))
 }

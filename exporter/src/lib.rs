@@ -7,6 +7,7 @@ pub mod budget;
 pub mod calibrate;
 pub mod cli_args;
 pub mod control_points;
+pub mod cost;
 pub mod cp;
 pub mod encode;
 pub mod error;

@@ -73,6 +73,13 @@ struct OutputArgs {
     /// activations than real motion frames, docs/omg.md).
     #[arg(long)]
     headroom: Option<f64>,
+    /// Warn (one line on stderr, and `frame_budget` in the report) when the
+    /// estimated instructions per frame of the network on the reference
+    /// target (Cortex-M4 under QEMU; the cost model of exporter/src/cost.rs)
+    /// exceed N. A warning: the blob is written and the exit status is
+    /// unchanged.
+    #[arg(long, value_name = "N")]
+    budget_instructions: Option<u64>,
 }
 
 /// The quantiser's default headroom.
@@ -260,7 +267,20 @@ fn export(
             r
         }
     };
+    let mut report = report;
+    if let Some(n) = q.budget_instructions {
+        let model = phasegate::Model::from_bytes(&blob)
+            .map_err(|e| anyhow::anyhow!("the blob written does not load back: {e}"))?;
+        report.frame_budget = Some(exporter::cost::check_budget(&model, n));
+    }
     write_outputs(&blob, &report, q)?;
+    if let Some(w) = report
+        .frame_budget
+        .as_ref()
+        .and_then(|c| c.warning.as_ref())
+    {
+        eprintln!("{}: {w}", q.output.display());
+    }
     if std::io::stdout().is_terminal() || std::env::var_os("PHASEGATE_VERBOSE").is_some() {
         summary(&report, &q.output);
     } else {

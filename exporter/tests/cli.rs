@@ -787,3 +787,55 @@ fn inspect_names_the_version_found_and_the_version_supported() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
+
+/// `--budget-instructions`: above the estimate, one warning line on stderr
+/// naming the output, `frame_budget` in the report, the blob written and
+/// exit status 0; at or below it, no warning.
+#[test]
+fn budget_instructions_warns_without_failing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let weights = tmp.path().join("net");
+    small_pfnn(&weights);
+    let blob = tmp.path().join("m.blob");
+    let report = tmp.path().join("m.json");
+    let run = |budget: &str| {
+        exporter(&[
+            "pfnn",
+            "--weights",
+            weights.to_str().unwrap(),
+            "--gating",
+            "cubic",
+            "-o",
+            blob.to_str().unwrap(),
+            "--report",
+            report.to_str().unwrap(),
+            "--budget-instructions",
+            budget,
+        ])
+    };
+    let o = run("1000");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    let warnings: Vec<&str> = err.lines().filter(|l| l.contains("warning:")).collect();
+    assert_eq!(warnings.len(), 1, "{err}");
+    assert!(
+        warnings[0].contains("m.blob") && warnings[0].contains("exceed --budget-instructions 1000"),
+        "{err}"
+    );
+    assert!(blob.exists());
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let fb = &json["frame_budget"];
+    assert_eq!(fb["budget_instructions"], 1000);
+    assert_eq!(fb["exceeds"], true);
+    let estimate = fb["estimated_instructions"].as_u64().unwrap();
+    let bytes = std::fs::read(&blob).unwrap();
+    let model = phasegate::Model::from_bytes(&bytes).unwrap();
+    assert_eq!(estimate, exporter::cost::estimate_instructions(&model));
+
+    let o = run(&estimate.to_string());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("warning:"), "{}", stderr(&o));
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert_eq!(json["frame_budget"]["exceeds"], false);
+    assert!(json["frame_budget"].get("warning").is_none());
+}

@@ -30,6 +30,8 @@
 )]
 
 mod measure;
+#[cfg(feature = "controller")]
+mod status_pin;
 // The wire format, shared with host-sim.
 use phasegate_wire as wire;
 
@@ -38,12 +40,14 @@ use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, Ordering};
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
+#[cfg(feature = "controller")]
+use defmt::warn;
 use defmt::{error, info, Display2Format};
 use defmt_semihosting as _;
 use phasegate::blob::{LayerOp, MAGIC};
 use phasegate::{Model, Phase, Runtime, Style};
 #[cfg(feature = "controller")]
-use phasegate_controller::{layout, Locomotion, Network};
+use phasegate_controller::{layout, Deadline, Locomotion, Network, TickSource};
 use semihosting::fs::File;
 use semihosting::io::Write as _;
 
@@ -280,7 +284,8 @@ fn main() -> ! {
         }
     };
     if input.mode == wire::Mode::Controller {
-        run_controller(rt, &input, records, calib_ticks);
+        let after = hostio.get(input.image_len() as usize..).unwrap_or(&[]);
+        run_controller(rt, &input, records, after, calib_ticks);
     }
     if input.input_dim as usize != input_dim || input.output_dim as usize != output_dim {
         error!(
@@ -414,7 +419,7 @@ fn create_output(header: &wire::OutputHeader) -> File {
 /// Controller mode without the `controller` feature: refused.
 #[cfg(not(feature = "controller"))]
 #[inline(never)]
-fn run_controller(_: &mut Rt, _: &wire::InputHeader, _: &[u8], _: u32) -> ! {
+fn run_controller(_: &mut Rt, _: &wire::InputHeader, _: &[u8], _: &[u8], _: u32) -> ! {
     error!("controller mode is not built into this firmware (cargo build --release --features controller)");
     exit(wire::exit::NO_CONTROLLER);
 }
@@ -473,11 +478,30 @@ fn init_locomotion(rt: &Rt) -> phasegate_controller::Result<&'static mut Locomot
     }
 }
 
-/// Controller mode: per record, `set_mix` then `Locomotion::step` with the
-/// record's command; writes each pose and its timings; never returns.
+/// SysTick as the deadline's tick source.
+#[cfg(feature = "controller")]
+struct SysTicks;
+
+#[cfg(feature = "controller")]
+impl TickSource for SysTicks {
+    fn now_ticks(&mut self) -> u64 {
+        measure::now()
+    }
+}
+
+/// Controller mode: per record, `set_mix` then `Locomotion::frame` with
+/// the record's command, timed by the deadline read from the block after
+/// the records (`after`; none: frames are timed, nothing overruns); writes
+/// each pose, its timings and its deadline status; never returns.
 #[cfg(feature = "controller")]
 #[inline(never)]
-fn run_controller(rt: &mut Rt, input: &wire::InputHeader, records: &[u8], calib_ticks: u32) -> ! {
+fn run_controller(
+    rt: &mut Rt,
+    input: &wire::InputHeader,
+    records: &[u8],
+    after: &[u8],
+    calib_ticks: u32,
+) -> ! {
     let model = rt.model();
     let (inputs, outputs) = (model.input_dim(), model.output_dim());
     if inputs != layout::INPUTS || outputs != layout::OUTPUTS {
@@ -495,6 +519,13 @@ fn run_controller(rt: &mut Rt, input: &wire::InputHeader, records: &[u8], calib_
         );
         exit(wire::exit::BAD_INPUT);
     }
+    let config = match wire::parse_deadline(after) {
+        Ok(c) => c,
+        Err(e) => {
+            error!("input image's deadline block refused: {}", e);
+            exit(wire::exit::BAD_INPUT);
+        }
+    };
     let state = match init_locomotion(rt) {
         Ok(s) => s,
         Err(e) => {
@@ -507,6 +538,13 @@ fn run_controller(rt: &mut Rt, input: &wire::InputHeader, records: &[u8], calib_
         input.frames,
         core::mem::size_of::<Locomotion<f32>>()
     );
+    if let Some(b) = config.budget {
+        info!(
+            "deadline: {=u32} ticks per frame, on overrun {}; status pin FPGAIO LED0",
+            b.ticks(),
+            config.policy
+        );
+    }
     // SAFETY: IO is made with `Slot::with`.
     let Some(io) = (unsafe { IO.take() }) else {
         exit(wire::exit::PANIC)
@@ -520,6 +558,8 @@ fn run_controller(rt: &mut Rt, input: &wire::InputHeader, records: &[u8], calib_
         input_crc: input.crc,
         mode: input.mode,
     });
+    // The pin's error type is `Infallible`.
+    let Ok(mut deadline) = Deadline::new(config, status_pin::FpgaioLed::new(0), SysTicks);
     let mut net = Timed { rt, ticks: 0 };
     let mut frames_done = 0u32;
     for (i, rec) in records.chunks_exact(input.record_len()).enumerate() {
@@ -543,21 +583,35 @@ fn run_controller(rt: &mut Rt, input: &wire::InputHeader, records: &[u8], calib_
             exit(wire::exit::FRAME_ERROR);
         }
         net.ticks = 0;
-        let t0 = measure::now();
-        let result = state.step(&mut net, &command);
-        let t1 = measure::now();
-        let pose = match result {
+        let timed = deadline.frame(|action| state.frame(&mut net, action, &command));
+        let o = timed.outcome;
+        let pose = match timed.result {
             Ok(p) => p,
             Err(e) => {
                 error!("frame {=usize}: {} ({})", i, e, Display2Format(&e));
                 exit(wire::exit::FRAME_ERROR);
             }
         };
+        if o.overrun {
+            warn!(
+                "frame {=usize} overran its budget: {=u32} ticks > {=u32}; next frame: {}",
+                i,
+                o.ticks,
+                config.budget.map_or(0, |b| b.ticks()),
+                o.next
+            );
+        }
         let head = wire::RecordHead {
             infer_ticks: net.ticks,
-            frame_ticks: measure::elapsed(t0, t1),
+            frame_ticks: o.ticks,
         };
-        if wire::encode_pose_record(head, pose, record).is_none() || file.write_all(record).is_err()
+        let status = wire::FrameStatus {
+            overrun: o.overrun,
+            held: o.held,
+            pin_high: deadline.pin().is_set_high(),
+        };
+        if wire::encode_pose_record(head, status, pose, record).is_none()
+            || file.write_all(record).is_err()
         {
             error!("frame {=usize}: cannot write {=str}", i, wire::OUTPUT_FILE);
             exit(wire::exit::OUTPUT_ERROR);
@@ -569,6 +623,15 @@ fn run_controller(rt: &mut Rt, input: &wire::InputHeader, records: &[u8], calib_
         frames_done,
         wire::OUTPUT_FILE
     );
+    if config.budget.is_some() {
+        info!(
+            "deadline: {=u32} of {=u32} frames overran, {=u32} held; status pin {=bool}",
+            deadline.overruns(),
+            deadline.frames(),
+            deadline.held(),
+            deadline.pin().is_set_high()
+        );
+    }
     finish(frames_done, calib_ticks, Some(file));
 }
 

@@ -174,6 +174,20 @@ enum Command {
         /// 60 frames.
         #[arg(long, value_name = "SCRIPT", conflicts_with = "inputs")]
         controller: Option<String>,
+        /// With --controller: a frame budget of this many instructions
+        /// (rounded down to SysTick ticks of 40 instructions); the firmware
+        /// times every frame against it, reports each overrun and applies
+        /// --overrun-policy (docs/deadline.md).
+        #[arg(long, value_name = "N", requires = "controller")]
+        budget_instructions: Option<u64>,
+        /// With --budget-instructions: what an overrun does to the next frame.
+        #[arg(
+            long,
+            value_enum,
+            default_value = "hold-next",
+            requires = "budget_instructions"
+        )]
+        overrun_policy: PolicyArg,
     },
     /// Check the firmware's log snapshots (firmware/snapshots), or bless new ones.
     FirmwareSnapshots {
@@ -363,14 +377,30 @@ fn run(cli: Cli) -> Result<()> {
             styles,
             mix,
             controller,
+            budget_instructions,
+            overrun_policy,
         } => {
             if let Some(script) = controller {
+                let deadline = match budget_instructions {
+                    None => phasegate_controller::DeadlineConfig::NONE,
+                    Some(n) => phasegate_controller::DeadlineConfig {
+                        budget: Some(
+                            phasegate_controller::FrameBudget::from_instructions(
+                                n,
+                                host_sim::target::INSTRUCTIONS_PER_TICK as u32,
+                            )
+                            .map_err(|e| anyhow::anyhow!("--budget-instructions {n}: {e}"))?,
+                        ),
+                        policy: overrun_policy.into(),
+                    },
+                };
                 host_sim::target::controller::run(&host_sim::target::controller::ControllerArgs {
                     model: &model,
                     script: &script,
                     frames,
                     styles: &styles,
                     mix,
+                    deadline,
                 })?;
                 return Ok(());
             }
@@ -418,6 +448,24 @@ fn main() -> ExitCode {
         Err(e) => {
             eprintln!("error: {}", format!("{e:#}").replace('\n', " "));
             ExitCode::FAILURE
+        }
+    }
+}
+
+/// `--overrun-policy` of `host-sim target --controller`.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum PolicyArg {
+    /// Report overruns only; every frame infers.
+    Report,
+    /// Hold the last pose and skip the next frame's inference.
+    HoldNext,
+}
+
+impl From<PolicyArg> for phasegate_controller::OverrunPolicy {
+    fn from(p: PolicyArg) -> Self {
+        match p {
+            PolicyArg::Report => phasegate_controller::OverrunPolicy::Report,
+            PolicyArg::HoldNext => phasegate_controller::OverrunPolicy::HoldNext,
         }
     }
 }

@@ -45,6 +45,10 @@
 //! and infinities included, which `Locomotion::step` refuses with
 //! `BadCommand`: exit code [`exit::FRAME_ERROR`]).
 //!
+//! A controller-mode image may be followed by a 16-byte deadline block
+//! (frame budget and overrun policy, [`encode_deadline`]; the table is in
+//! `src/deadline.rs` and `docs/deadline.md`).
+//!
 //! The **mix field** says which style adapters the frame uses
 //! ([`Mix`]; the firmware calls `Runtime::set_mix` with it before the
 //! frame). Style ids are the order of the style blobs in the STYLES region
@@ -76,10 +80,12 @@
 //! Network-mode records (8 + 6 O bytes): u32 inference ticks, u32
 //! whole-frame ticks, O i16 quantised outputs, O f32 de-quantised outputs.
 //!
-//! Controller-mode records (12 + 4 x [`POSE_VALUES`] = 936 bytes): u32
+//! Controller-mode records (16 + 4 x [`POSE_VALUES`] = 940 bytes): u32
 //! network ticks (the loop's `Network::predict`: `Runtime::run`,
-//! i.e. input quantisation, inference, de-quantisation), u32 step ticks
-//! (the whole `Locomotion::step`), u32 `Pose::frame`, then the pose's 231
+//! i.e. input quantisation, inference, de-quantisation), u32 frame ticks
+//! (the whole `Locomotion::frame`, as the deadline timed it), u32
+//! `Pose::frame`, u32 deadline [`FrameStatus`] (bit 0 overran, bit 1 held,
+//! bit 2 status pin high), then the pose's 231
 //! f32 as raw bits ([`encode_pose_record`]): `root_position` (3),
 //! `facing` (2), `joint_positions` (31 x 3), `joint_rotations` (31 x 4,
 //! `[x, y, z, w]`), `contacts` (4), `phase` (1), `gaits` (4).
@@ -91,6 +97,11 @@ use phasegate::style::BlendWeight;
 use phasegate::{Mix, StyleId};
 use phasegate_controller::layout::JOINTS;
 use phasegate_controller::{Command, GaitWeights, Pose};
+
+mod deadline;
+pub use deadline::{
+    encode_deadline, parse_deadline, FrameStatus, DEADLINE_BLOCK_LEN, DEADLINE_MAGIC,
+};
 
 /// Magic of the input image.
 pub const INPUT_MAGIC: [u8; 4] = *b"PGIN";
@@ -119,8 +130,8 @@ pub const COMMAND_RECORD_LEN: usize = MIX_LEN + 4 * COMMAND_VALUES;
 /// f32 values of a [`Pose`] on the wire (everything but `frame`).
 pub const POSE_VALUES: usize = 3 + 2 + 3 * JOINTS + 4 * JOINTS + 4 + 1 + 4;
 /// Bytes of a controller-mode output record: two tick counts, the frame
-/// number and the pose's f32.
-pub const POSE_RECORD_LEN: usize = 12 + 4 * POSE_VALUES;
+/// number, the deadline's [`FrameStatus`] and the pose's f32.
+pub const POSE_RECORD_LEN: usize = 16 + 4 * POSE_VALUES;
 
 /// What the records of an input image hold.
 #[derive(Clone, Copy, Debug, Eq, PartialEq)]
@@ -181,6 +192,9 @@ pub enum WireError {
     CrcMismatch,
     /// The header's mode is neither 0 (network) nor 1 (controller).
     UnknownMode(u32),
+    /// The deadline block after the records is damaged (CRC) or names a
+    /// zero budget or an unknown policy.
+    BadDeadline,
 }
 
 impl core::fmt::Display for WireError {
@@ -204,6 +218,9 @@ impl core::fmt::Display for WireError {
             WireError::UnknownMode(m) => {
                 write!(f, "unknown mode {m} (0 = network, 1 = controller)")
             }
+            WireError::BadDeadline => f.write_str(
+                "damaged deadline block (CRC), or a zero budget or an unknown policy",
+            ),
         }
     }
 }
@@ -526,17 +543,23 @@ fn pose_values_mut(p: &mut Pose<f32>) -> impl Iterator<Item = &mut f32> {
 }
 
 /// Encodes one controller-mode output record into `buf` (length
-/// [`POSE_RECORD_LEN`]): network ticks, step ticks, the frame number and
-/// the pose; `None` on a length mismatch.
-pub fn encode_pose_record(head: RecordHead, pose: &Pose<f32>, buf: &mut [u8]) -> Option<()> {
+/// [`POSE_RECORD_LEN`]): network ticks, frame ticks, the frame number, the
+/// deadline status and the pose; `None` on a length mismatch.
+pub fn encode_pose_record(
+    head: RecordHead,
+    status: FrameStatus,
+    pose: &Pose<f32>,
+    buf: &mut [u8],
+) -> Option<()> {
     if buf.len() != POSE_RECORD_LEN {
         return None;
     }
     put_u32(buf, 0, head.infer_ticks);
     put_u32(buf, 4, head.frame_ticks);
     put_u32(buf, 8, pose.frame);
+    put_u32(buf, 12, status.to_u32());
     for (d, v) in buf
-        .get_mut(12..)?
+        .get_mut(16..)?
         .chunks_exact_mut(4)
         .zip(pose_values(pose))
     {
@@ -546,8 +569,9 @@ pub fn encode_pose_record(head: RecordHead, pose: &Pose<f32>, buf: &mut [u8]) ->
 }
 
 /// Decodes one controller-mode output record: its head (network ticks,
-/// step ticks) and the pose.
-pub fn decode_pose_record(buf: &[u8]) -> Option<(RecordHead, Pose<f32>)> {
+/// frame ticks), the deadline status and the pose; `None` on a length
+/// mismatch or a status word with unknown bits.
+pub fn decode_pose_record(buf: &[u8]) -> Option<(RecordHead, FrameStatus, Pose<f32>)> {
     if buf.len() != POSE_RECORD_LEN {
         return None;
     }
@@ -555,12 +579,13 @@ pub fn decode_pose_record(buf: &[u8]) -> Option<(RecordHead, Pose<f32>)> {
         infer_ticks: u32_at(buf, 0),
         frame_ticks: u32_at(buf, 4),
     };
+    let status = FrameStatus::from_u32(u32_at(buf, 12))?;
     let mut pose = Pose::zero();
     pose.frame = u32_at(buf, 8);
     for (i, v) in pose_values_mut(&mut pose).enumerate() {
-        *v = f32::from_bits(u32_at(buf, 12 + 4 * i));
+        *v = f32::from_bits(u32_at(buf, 16 + 4 * i));
     }
-    Some((head, pose))
+    Some((head, status, pose))
 }
 
 /// Header of the output file.

@@ -16,7 +16,9 @@ use std::time::Duration;
 use anyhow::{bail, ensure, Context, Result};
 use phasegate::{Mix, Model, Runtime, Style};
 use phasegate_controller::layout::{INPUTS, JOINTS, OUTPUTS};
-use phasegate_controller::{Command, Locomotion, Pose};
+use phasegate_controller::{
+    Command, Deadline, DeadlineConfig, FrameAction, Locomotion, Pose, TickSource,
+};
 
 use super::build::build_controller_firmware;
 use super::run::records_and_trailer;
@@ -54,8 +56,19 @@ pub fn script_commands(script: &Script, frames: usize) -> Vec<Command> {
 }
 
 /// The controller-mode input image: one record (mix field, command) per
-/// frame. `mix_fields` are the raw mix fields (one per command).
+/// frame. `mix_fields` are the raw mix fields (one per command). No
+/// deadline.
 pub fn controller_image(commands: &[Command], mix_fields: &[[u8; wire::MIX_LEN]]) -> Vec<u8> {
+    deadline_image(commands, mix_fields, DeadlineConfig::NONE)
+}
+
+/// [`controller_image`] followed by the deadline block of `deadline` (none
+/// when it has no budget).
+pub fn deadline_image(
+    commands: &[Command],
+    mix_fields: &[[u8; wire::MIX_LEN]],
+    deadline: DeadlineConfig,
+) -> Vec<u8> {
     assert_eq!(
         commands.len(),
         mix_fields.len(),
@@ -74,6 +87,9 @@ pub fn controller_image(commands: &[Command], mix_fields: &[[u8; wire::MIX_LEN]]
     };
     let mut image = header.encode().to_vec();
     image.extend_from_slice(&records);
+    if let Some(budget) = deadline.budget {
+        image.extend_from_slice(&wire::encode_deadline(budget, deadline.policy));
+    }
     image
 }
 
@@ -85,6 +101,21 @@ pub fn host_poses(
     styles: &[StyleFile],
     commands: &[Command],
     mixes: &[Mix],
+) -> Result<Vec<Pose<f32>>> {
+    replay_poses(model, styles, commands, mixes, &[])
+}
+
+/// [`host_poses`] replaying the firmware's deadline decisions: frame `i`
+/// is held ([`FrameAction::Hold`] through `Locomotion::frame`, as on the
+/// device) when `held[i]` (missing entries: inferred). The host cannot
+/// know the device's tick counts, so it takes the decisions from the
+/// firmware's records; [`replay_policy`] checks that they are the policy's.
+pub fn replay_poses(
+    model: Model<'_>,
+    styles: &[StyleFile],
+    commands: &[Command],
+    mixes: &[Mix],
+    held: &[bool],
 ) -> Result<Vec<Pose<f32>>> {
     let mut rt = Box::new(
         Runtime::<'_, HOST_W, HOST_S, HOST_N>::new(model)
@@ -106,12 +137,76 @@ pub fn host_poses(
         let mix = mixes.get(i).copied().unwrap_or(Mix::Base);
         rt.set_mix(mix)
             .with_context(|| format!("frame {i}: mix {}", styles::mix_spec_item(mix)))?;
+        let action = if held.get(i).copied().unwrap_or(false) {
+            FrameAction::Hold
+        } else {
+            FrameAction::Infer
+        };
         let pose = state
-            .step(&mut *rt, c)
+            .frame(&mut *rt, action, c)
             .with_context(|| format!("frame {i}: host controller step"))?;
         poses.push(pose.clone());
     }
     Ok(poses)
+}
+
+/// Ticks replayed from the firmware's records: each frame reads the clock
+/// twice (start, end), and the end is the start plus that frame's ticks.
+struct ReplayTicks<'a> {
+    ticks: std::slice::Iter<'a, u64>,
+    now: u64,
+    at_start: bool,
+}
+
+impl TickSource for ReplayTicks<'_> {
+    fn now_ticks(&mut self) -> u64 {
+        if !self.at_start {
+            self.now += self.ticks.next().copied().unwrap_or(0);
+        }
+        self.at_start = !self.at_start;
+        self.now
+    }
+}
+
+/// A pin that records its level after each frame.
+#[derive(Default)]
+struct LevelPin(bool);
+
+impl embedded_hal::digital::ErrorType for LevelPin {
+    type Error = std::convert::Infallible;
+}
+
+impl embedded_hal::digital::OutputPin for LevelPin {
+    fn set_low(&mut self) -> Result<(), Self::Error> {
+        self.0 = false;
+        Ok(())
+    }
+    fn set_high(&mut self) -> Result<(), Self::Error> {
+        self.0 = true;
+        Ok(())
+    }
+}
+
+/// The deadline policy run on the host over the firmware's frame ticks:
+/// what each frame's status must be (overrun, held, pin level after it).
+pub fn replay_policy(config: DeadlineConfig, frame_ticks: &[u64]) -> Vec<wire::FrameStatus> {
+    let clock = ReplayTicks {
+        ticks: frame_ticks.iter(),
+        now: 0,
+        at_start: true,
+    };
+    let Ok(mut d) = Deadline::new(config, LevelPin::default(), clock);
+    frame_ticks
+        .iter()
+        .map(|_| {
+            let f = d.frame(|_| ());
+            wire::FrameStatus {
+                overrun: f.outcome.overrun,
+                held: f.outcome.held,
+                pin_high: d.pin().0,
+            }
+        })
+        .collect()
 }
 
 /// Name of the `k`-th f32 of a pose in wire order (`wire::pose_values`).
@@ -208,11 +303,18 @@ pub struct ControllerReport {
     pub styles: Vec<StyleFile>,
     /// The mix schedule.
     pub mix: MixSpec,
+    /// The frame deadline the firmware ran with.
+    pub deadline: DeadlineConfig,
+    /// Each frame's deadline status, as the firmware recorded it.
+    pub status: Vec<wire::FrameStatus>,
+    /// Frames whose recorded status differs from the host's replay of the
+    /// policy on the firmware's frame ticks ([`replay_policy`]).
+    pub policy_mismatches: Vec<usize>,
     /// Pose values (f32 and frame counters) that differ from the host.
     pub mismatches: usize,
     /// The first few of them.
     pub first_mismatches: Vec<PoseMismatch>,
-    /// Instructions per whole `Locomotion::step`.
+    /// Instructions per whole `Locomotion::step` (inferred frames only).
     pub step_instructions: Stats,
     /// Instructions per network call inside the step (`Runtime::run`:
     /// input quantisation, inference, de-quantisation).
@@ -243,6 +345,62 @@ impl ControllerReport {
     /// Whether every pose value of every frame matched the host bit for bit.
     pub fn bit_exact(&self) -> bool {
         self.mismatches == 0
+    }
+
+    /// Frames that overran their budget.
+    pub fn overruns(&self) -> usize {
+        self.status.iter().filter(|s| s.overrun).count()
+    }
+
+    /// Frames held (inference skipped).
+    pub fn held(&self) -> usize {
+        self.status.iter().filter(|s| s.held).count()
+    }
+
+    /// Frames after which the status pin read high.
+    pub fn pin_high_frames(&self) -> usize {
+        self.status.iter().filter(|s| s.pin_high).count()
+    }
+
+    /// The deadline lines of the report (none without a budget).
+    fn deadline_lines(&self, s: &mut String) {
+        let Some(b) = self.deadline.budget else {
+            return;
+        };
+        let list = |pick: fn(&wire::FrameStatus) -> bool| {
+            let v: Vec<String> = (self.status.iter().enumerate())
+                .filter(|(_, st)| pick(st))
+                .map(|(i, _)| i.to_string())
+                .take(12)
+                .collect();
+            v.join(" ")
+        };
+        let _ = writeln!(
+            s,
+            "deadline: {} ticks ({} instructions) per frame, policy {:?}: {} of {} frames overran (first: {}), {} held (first: {}), status pin high after {} frames",
+            b.ticks(),
+            u64::from(b.ticks()) * INSTRUCTIONS_PER_TICK,
+            self.deadline.policy,
+            self.overruns(),
+            self.frames,
+            list(|st| st.overrun),
+            self.held(),
+            list(|st| st.held),
+            self.pin_high_frames()
+        );
+        if self.policy_mismatches.is_empty() {
+            let _ = writeln!(
+                s,
+                "deadline: the host's replay of the policy on the firmware's frame ticks gives the same overruns, held frames and pin levels"
+            );
+        } else {
+            let _ = writeln!(
+                s,
+                "deadline: POLICY MISMATCH at {} frames (first {}): the firmware's statuses are not the policy's",
+                self.policy_mismatches.len(),
+                self.policy_mismatches[0]
+            );
+        }
     }
 
     /// Issue 4's budgets applied to the controller firmware: the verdict
@@ -331,6 +489,7 @@ impl ControllerReport {
                 st.min, st.median, st.max
             );
         };
+        self.deadline_lines(&mut s);
         line(&mut s, "whole Locomotion::step", self.step_instructions);
         line(
             &mut s,
@@ -396,6 +555,9 @@ pub struct ControllerArgs<'a> {
     pub styles: &'a [PathBuf],
     /// Mix schedule (default [`MixSpec::default_for`] the styles).
     pub mix: Option<MixSpec>,
+    /// The frame deadline ([`DeadlineConfig::NONE`]: frames are timed,
+    /// none overruns).
+    pub deadline: DeadlineConfig,
 }
 
 /// Runs the controller on the firmware and on the host; does not print or
@@ -423,7 +585,6 @@ pub fn execute(args: &ControllerArgs<'_>) -> Result<ControllerReport> {
     styles::check_schedule(&mixes, style_files.len())?;
     let commands = script_commands(&script, frames);
     let macs = model.macs_per_frame();
-    let host = host_poses(model, &style_files, &commands, &mixes)?;
 
     eprintln!(
         "building the firmware with the controller feature (cargo build --release --features controller in {}) ...",
@@ -433,7 +594,7 @@ pub fn execute(args: &ControllerArgs<'_>) -> Result<ControllerReport> {
     let elf = ElfInfo::read(&elf_path)?;
     let inference_elf = ElfInfo::read(&build_firmware()?)?;
     let mix_fields: Vec<[u8; wire::MIX_LEN]> = mixes.iter().map(|&m| wire::encode_mix(m)).collect();
-    let image = controller_image(&commands, &mix_fields);
+    let image = deadline_image(&commands, &mix_fields, args.deadline);
     let input_crc = wire::InputHeader::parse(&image)
         .map(|(h, _)| h.crc)
         .unwrap_or(0);
@@ -461,17 +622,25 @@ pub fn execute(args: &ControllerArgs<'_>) -> Result<ControllerReport> {
     let out = parse_pose_file(file, frames, input_crc)?;
     let t = out.trailer;
     super::check_calibration(&t)?;
+    let held: Vec<bool> = out.status.iter().map(|s| s.held).collect();
+    let host = replay_poses(model, &style_files, &commands, &mixes, &held)?;
     let (mismatches, first_mismatches) = compare_poses(&host, &out.poses);
-    let step: Vec<u64> = out
-        .step_ticks
-        .iter()
-        .map(|t| t * INSTRUCTIONS_PER_TICK)
+    let replayed = replay_policy(args.deadline, &out.step_ticks);
+    let policy_mismatches = (replayed.iter().zip(&out.status).enumerate())
+        .filter(|(_, (a, b))| a != b)
+        .map(|(i, _)| i)
         .collect();
-    let network: Vec<u64> = out
-        .network_ticks
-        .iter()
-        .map(|t| t * INSTRUCTIONS_PER_TICK)
-        .collect();
+    // Held frames run no step: the step and network figures are over the
+    // inferred frames.
+    let inferred = |v: &[u64]| -> Vec<u64> {
+        v.iter()
+            .zip(&held)
+            .filter(|(_, h)| !**h)
+            .map(|(t, _)| t * INSTRUCTIONS_PER_TICK)
+            .collect()
+    };
+    let step = inferred(&out.step_ticks);
+    let network = inferred(&out.network_ticks);
     let own: Vec<u64> = step
         .iter()
         .zip(&network)
@@ -484,7 +653,18 @@ pub fn execute(args: &ControllerArgs<'_>) -> Result<ControllerReport> {
         blob_len: blob.len(),
         script: script.name.clone(),
         frames,
-        mix_groups: styles::mix_groups(&mixes, &network, u64::from(macs), &style_files),
+        mix_groups: styles::mix_groups(
+            &(mixes.iter().zip(&held))
+                .filter(|(_, h)| !**h)
+                .map(|(m, _)| *m)
+                .collect::<Vec<_>>(),
+            &network,
+            u64::from(macs),
+            &style_files,
+        ),
+        deadline: args.deadline,
+        status: out.status.clone(),
+        policy_mismatches,
         styles: style_files,
         mix,
         mismatches,
@@ -508,6 +688,12 @@ pub fn execute(args: &ControllerArgs<'_>) -> Result<ControllerReport> {
 pub fn run(args: &ControllerArgs<'_>) -> Result<ControllerReport> {
     let report = execute(args)?;
     print!("{}", report.render());
+    if let Some(&first) = report.policy_mismatches.first() {
+        bail!(
+            "the firmware's deadline statuses differ from the policy replayed on its frame ticks ({} frames, first {first})",
+            report.policy_mismatches.len()
+        );
+    }
     if !report.bit_exact() {
         let m = report.first_mismatches.first();
         bail!(
@@ -526,8 +712,10 @@ pub struct PoseFile {
     pub poses: Vec<Pose<f32>>,
     /// Ticks in the network per step.
     pub network_ticks: Vec<u64>,
-    /// Ticks per whole step.
+    /// Ticks per whole frame (as the deadline timed it).
     pub step_ticks: Vec<u64>,
+    /// Each frame's deadline status.
+    pub status: Vec<wire::FrameStatus>,
     /// The trailer.
     pub trailer: wire::Trailer,
 }
@@ -551,13 +739,15 @@ pub fn parse_pose_file(file: &[u8], frames: usize, input_crc: u32) -> Result<Pos
         poses: Vec::with_capacity(frames),
         network_ticks: Vec::with_capacity(frames),
         step_ticks: Vec::with_capacity(frames),
+        status: Vec::with_capacity(frames),
         trailer,
     };
     for r in records.chunks_exact(rl) {
-        let (head, pose) =
-            wire::decode_pose_record(r).context("firmware pose record has the wrong length")?;
+        let (head, status, pose) = wire::decode_pose_record(r)
+            .context("firmware pose record has the wrong length or an unknown status bit")?;
         out.network_ticks.push(u64::from(head.infer_ticks));
         out.step_ticks.push(u64::from(head.frame_ticks));
+        out.status.push(status);
         out.poses.push(pose);
     }
     Ok(out)

@@ -297,7 +297,7 @@ fn output_records_round_trip() {
         ..h
     };
     assert_eq!(wire::OutputHeader::parse(&c.encode()), Ok(c));
-    assert_eq!(c.record_len(), 12 + 4 * 231);
+    assert_eq!(c.record_len(), 16 + 4 * 231);
     assert_eq!(&c.encode()[24..28], &1u32.to_le_bytes());
 }
 
@@ -1100,20 +1100,29 @@ fn command_images_and_pose_records_round_trip() {
         infer_ticks: 11,
         frame_ticks: 22,
     };
+    let status = wire::FrameStatus {
+        overrun: true,
+        held: false,
+        pin_high: true,
+    };
     let mut buf = vec![0u8; wire::POSE_RECORD_LEN];
-    wire::encode_pose_record(head, &pose, &mut buf).unwrap();
+    wire::encode_pose_record(head, status, &pose, &mut buf).unwrap();
     assert_eq!(&buf[8..12], &77u32.to_le_bytes());
-    assert_eq!(&buf[12..16], &pose.root_position[0].to_le_bytes());
-    let rot = 12 + 4 * (3 + 2 + 3 * 31);
+    assert_eq!(&buf[12..16], &5u32.to_le_bytes());
+    assert_eq!(&buf[16..20], &pose.root_position[0].to_le_bytes());
+    let rot = 16 + 4 * (3 + 2 + 3 * 31);
     assert_eq!(
         &buf[rot..rot + 4],
         &pose.joint_rotations[0][0].to_le_bytes()
     );
     assert_eq!(&buf[buf.len() - 4..], &pose.gaits[3].to_le_bytes());
-    let (h2, p2) = wire::decode_pose_record(&buf).unwrap();
-    assert_eq!((h2, &p2), (head, &pose));
+    let (h2, s2, p2) = wire::decode_pose_record(&buf).unwrap();
+    assert_eq!((h2, s2, &p2), (head, status, &pose));
     assert!(wire::decode_pose_record(&buf[1..]).is_none());
-    assert!(wire::encode_pose_record(head, &pose, &mut buf[1..]).is_none());
+    assert!(wire::encode_pose_record(head, status, &pose, &mut buf[1..]).is_none());
+    // A status word with an unknown bit is refused.
+    buf[12] = 8;
+    assert!(wire::decode_pose_record(&buf).is_none());
 
     // Field names follow the same order, and a changed value is found.
     assert_eq!(controller::pose_field_name(0), "root_position.x");
@@ -1147,6 +1156,7 @@ fn controller_is_bit_exact_on_the_default_model() {
         frames: Some(60),
         styles: &[],
         mix: None,
+        deadline: phasegate_controller::DeadlineConfig::NONE,
     })
     .unwrap();
     assert!(report.bit_exact());
@@ -1198,6 +1208,7 @@ fn controller_with_styles_switched_and_blended_is_bit_exact() {
         frames: Some(frames),
         styles: &paths,
         mix: Some(mix.clone()),
+        deadline: phasegate_controller::DeadlineConfig::NONE,
     })
     .unwrap();
     assert!(report.bit_exact());
@@ -1234,6 +1245,7 @@ fn controller_refuses_non_pfnn_models_and_bad_commands() {
         frames: Some(4),
         styles: &[],
         mix: None,
+        deadline: phasegate_controller::DeadlineConfig::NONE,
     })
     .unwrap_err();
     let msg = format!("{err:#}");
@@ -1295,4 +1307,191 @@ fn controller_refuses_non_pfnn_models_and_bad_commands() {
         "{:?}",
         booted.log
     );
+}
+
+/// The controller under a frame deadline on the firmware (docs/deadline.md).
+fn deadline_run(
+    blob: &std::path::Path,
+    instructions: u64,
+    policy: phasegate_controller::OverrunPolicy,
+) -> controller::ControllerReport {
+    let deadline = phasegate_controller::DeadlineConfig {
+        budget: Some(
+            phasegate_controller::FrameBudget::from_instructions(
+                instructions,
+                INSTRUCTIONS_PER_TICK as u32,
+            )
+            .unwrap(),
+        ),
+        policy,
+    };
+    let report = controller::run(&controller::ControllerArgs {
+        model: blob,
+        script: "walk",
+        frames: Some(40),
+        styles: &[],
+        mix: None,
+        deadline,
+    })
+    .unwrap();
+    println!("{}", report.render());
+    assert!(report.policy_mismatches.is_empty());
+    assert!(report.bit_exact());
+    report
+}
+
+/// A budget far below a step's cost (4,000 instructions: a step of the
+/// default model costs a few hundred thousand) overruns every inferred
+/// frame; under hold-next every other frame is held (the same pose
+/// again), the status pin reads high after each overrun and low after
+/// each held frame, the defmt log has one line per overrun, and the
+/// host's loop replaying the held frames stays bit-exact. Report-only:
+/// every frame overruns, none is held, the poses are the plain loop's.
+/// A generous budget: nothing overruns.
+#[test]
+fn controller_deadline_overruns_hold_and_drive_the_pin_under_qemu() {
+    use phasegate_controller::OverrunPolicy;
+    let name = "controller_deadline_overruns_hold_and_drive_the_pin_under_qemu";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    let Some(blob) = golden_or_skip(name) else {
+        return;
+    };
+    let tight = deadline_run(&blob, 4_000, OverrunPolicy::HoldNext);
+    assert_eq!(tight.frames, 40);
+    for (i, s) in tight.status.iter().enumerate() {
+        let inferred = i % 2 == 0;
+        assert_eq!(
+            (s.overrun, s.held, s.pin_high),
+            (inferred, !inferred, inferred),
+            "frame {i}"
+        );
+    }
+    let warns = tight
+        .log
+        .iter()
+        .filter(|l| l.contains("overran its budget"))
+        .count();
+    assert_eq!(warns, 20, "{:?}", tight.log);
+    assert!(tight
+        .log
+        .iter()
+        .any(|l| l.contains("deadline: 20 of 40 frames overran, 20 held")));
+    // Held frames repeat the pose; the character still walked 20 frames.
+    let bytes = std::fs::read(&blob).unwrap();
+    let cmds = controller::script_commands(&phasegate_script("walk"), 40);
+    let held: Vec<bool> = tight.status.iter().map(|s| s.held).collect();
+    let poses =
+        controller::replay_poses(Model::from_bytes(&bytes).unwrap(), &[], &cmds, &[], &held)
+            .unwrap();
+    assert_eq!(poses[1], poses[0]);
+    assert_eq!(poses[39].frame, 20);
+
+    let report_only = deadline_run(&blob, 4_000, OverrunPolicy::Report);
+    assert_eq!((report_only.overruns(), report_only.held()), (40, 0));
+    assert_eq!(report_only.pin_high_frames(), 40);
+
+    let generous = deadline_run(&blob, 100_000_000, OverrunPolicy::HoldNext);
+    assert_eq!(
+        (
+            generous.overruns(),
+            generous.held(),
+            generous.pin_high_frames()
+        ),
+        (0, 0, 0)
+    );
+    assert!(!generous
+        .log
+        .iter()
+        .any(|l| l.contains("overran its budget")));
+}
+
+/// The policy replayed on the host from recorded frame ticks.
+#[test]
+fn policy_replay_follows_the_recorded_ticks() {
+    use phasegate_controller::{DeadlineConfig, OverrunPolicy};
+    let c = DeadlineConfig::new(100, OverrunPolicy::HoldNext).unwrap();
+    let s = controller::replay_policy(c, &[50, 150, 2, 101, 1, 100]);
+    let bits: Vec<u32> = s.iter().map(|s| s.to_u32()).collect();
+    // overrun | held << 1 | pin << 2
+    assert_eq!(bits, vec![0, 5, 2, 5, 2, 0]);
+    assert!(controller::replay_policy(DeadlineConfig::NONE, &[u64::MAX])
+        .iter()
+        .all(|s| s.to_u32() == 0));
+}
+
+/// A damaged deadline block is refused by the firmware with one error
+/// line and the bad-input exit code, before any frame runs.
+#[test]
+fn controller_refuses_a_damaged_deadline_block() {
+    let name = "controller_refuses_a_damaged_deadline_block";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    let Some(blob) = golden_or_skip(name) else {
+        return;
+    };
+    let cmds = controller::script_commands(&phasegate_script("walk"), 2);
+    let base = vec![wire::encode_mix(Mix::Base); 2];
+    let budget = phasegate_controller::FrameBudget::from_ticks(50).unwrap();
+    let mut image = controller::deadline_image(
+        &cmds,
+        &base,
+        phasegate_controller::DeadlineConfig {
+            budget: Some(budget),
+            policy: phasegate_controller::OverrunPolicy::HoldNext,
+        },
+    );
+    let n = image.len();
+    image[n - 8] = 7; // policy 7, CRC now wrong
+    let elf_path = build_controller_firmware().unwrap();
+    let elf = ElfInfo::read(&elf_path).unwrap();
+    let t = Duration::from_secs(60);
+    let booted = boot(&elf, &elf_path, Some(&blob), None, Some(&image), t).unwrap();
+    assert_eq!(
+        booted.run.exit_code,
+        wire::exit::BAD_INPUT,
+        "{:?}",
+        booted.log
+    );
+    let last = booted.log.last().cloned().unwrap_or_default();
+    assert!(last.contains("deadline block refused"), "{last}");
+}
+
+/// The exporter's cost model (`exporter::cost`) against the firmware: on
+/// every golden blob the estimate is within the model's stated tolerance
+/// of the measured whole frame (`Runtime::run`'s three stages).
+#[test]
+fn cost_estimate_tracks_qemu() {
+    let name = "cost_estimate_tracks_qemu";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    if golden_or_skip(name).is_none() {
+        return;
+    }
+    for case in ["default", "dense-int16", "softmax-graph", "cp-diagonal"] {
+        let blob = frames::golden_root().join(case).join("model.blob");
+        let report = execute(&TargetArgs {
+            model: blob.clone(),
+            frames: Some(8),
+            inputs: None,
+            phases: None,
+            styles: vec![],
+            mix: None,
+        })
+        .unwrap();
+        let bytes = std::fs::read(&blob).unwrap();
+        let estimate = exporter::cost::estimate_instructions(&Model::from_bytes(&bytes).unwrap());
+        let measured = report.frame_instructions.median;
+        println!(
+            "{case}: estimated {estimate}, measured {measured} instructions per frame ({:+.1} %)",
+            (estimate as f64 / measured as f64 - 1.0) * 100.0
+        );
+        assert!(
+            estimate.abs_diff(measured) * 100 <= exporter::cost::TOLERANCE_PERCENT * measured,
+            "{case}: estimated {estimate}, measured {measured}"
+        );
+    }
 }
