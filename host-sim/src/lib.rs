@@ -7,6 +7,7 @@ pub mod controller;
 pub mod default_model;
 pub mod demo;
 pub mod eval;
+pub mod footprint;
 pub mod golden;
 pub mod npy;
 pub mod omg;
