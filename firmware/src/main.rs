@@ -14,7 +14,9 @@
 //!    frame (mix -> `set_mix`; phase in radians and f32 inputs -> quantise
 //!    -> integer inference with the frame's adapters -> de-quantise),
 //!    timing each with SysTick, and write the outputs and timings to
-//!    `phasegate-out.bin` through semihosting;
+//!    `phasegate-out.bin` through semihosting, and (except in the
+//!    controller build) each frame's SysTick ticks per stage (input, gate,
+//!    each node, output) to `phasegate-profile.bin`;
 //! 5. write the stack high-water mark and exit through semihosting.
 //!
 //! Logs are defmt frames on semihosting stdout; `host-sim target` decodes
@@ -356,7 +358,7 @@ fn main() -> ! {
             exit(wire::exit::FRAME_ERROR);
         }
         // The profile's stages: input from here, then the runtime's marks
-        // (gate, each node's gather and op), then output.
+        // (gate, each node's preparation and op), then output.
         timer.start();
         let prepared = Phase::from_radians(input_record.phase).and_then(|phase| {
             rt.quantise_input(inputs, inputs_q)?;
@@ -382,10 +384,10 @@ fn main() -> ! {
             exit(wire::exit::FRAME_ERROR);
         }
         timer.close(wire::StageKind::Output, 0);
+        let t3 = measure::now();
         if let Some(f) = profile_file.as_mut() {
             write_profile(timer, profile_header.record_len(), f);
         }
-        let t3 = measure::now();
         let head = wire::RecordHead {
             infer_ticks: measure::elapsed(t1, t2),
             frame_ticks: measure::elapsed(t0, t3),

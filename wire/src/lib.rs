@@ -591,7 +591,8 @@ pub enum StageKind {
     Input,
     /// The phase gate's coefficients (1).
     Gate,
-    /// A node's input slices copied into its input span (2).
+    /// Preparing a node: decoding its record from the blob header and
+    /// copying its input slices into its input span (2).
     Gather,
     /// A node's op: a layer with its requantisation, activation and style
     /// adapters, or a softmax gate (3).

@@ -173,8 +173,7 @@ pub fn render(rows: &[StageRow], frames: usize) -> String {
     let total: f64 = rows.iter().map(|r| r.instructions).sum();
     let _ = writeln!(
         s,
-        "per stage (mean of {frames} frames; SysTick resolution 1 tick = {INSTRUCTIONS_PER_TICK} instructions per frame, so +-{:.1} in the mean):",
-        INSTRUCTIONS_PER_TICK as f64 / frames.max(1) as f64
+        "per stage (mean of {frames} frames; each stage read to 1 SysTick tick = {INSTRUCTIONS_PER_TICK} instructions, and includes about 40 instructions of its probe mark; prepare = decode the node's record and gather its inputs):"
     );
     let _ = writeln!(
         s,
@@ -217,4 +216,58 @@ pub fn render(rows: &[StageRow], frames: usize) -> String {
         "sum", "", "", "", "", "", total
     );
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use wire::{ProfileHeader, StageTicks};
+
+    /// A profile file of `frames` frames of the default model's 9 stages,
+    /// stage `s` of frame `f` taking `s + f` ticks.
+    fn file(frames: u32, stages: u32) -> Vec<u8> {
+        let h = ProfileHeader {
+            frames,
+            stages,
+            input_crc: 7,
+        };
+        let mut v = h.encode().to_vec();
+        let mut kinds = vec![(StageKind::Input, 0), (StageKind::Gate, 0)];
+        for n in 0..3 {
+            kinds.push((StageKind::Gather, n));
+            kinds.push((StageKind::Node, n));
+        }
+        kinds.push((StageKind::Output, 0));
+        for f in 0..frames {
+            for (s, &(kind, node)) in kinds.iter().enumerate() {
+                let ticks = s as u32 + f;
+                v.extend(StageTicks { kind, node, ticks }.encode());
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn stages_are_averaged_and_described() {
+        let model = Model::from_bytes(crate::default_model::BLOB).unwrap();
+        let rows = profile(&model, &file(2, 9), 2, 7).unwrap();
+        assert_eq!(rows.len(), 9);
+        let node0 = &rows[3];
+        assert_eq!((node0.stage, node0.node), ("node", Some(0)));
+        assert_eq!((node0.op.as_str(), node0.experts), ("dense", 4));
+        assert_eq!(node0.shape, "342 -> 32");
+        assert_eq!(node0.macs, 342 * 32 * 4);
+        // 3 and 4 ticks: 140 instructions on average.
+        assert_eq!(
+            (node0.instructions, node0.min, node0.max),
+            (140.0, 120, 160)
+        );
+        assert!(render(&rows, 2).contains("node 0"));
+        // A file for other frames, inputs or stage counts is refused.
+        assert!(profile(&model, &file(2, 9), 3, 7).is_err());
+        assert!(profile(&model, &file(2, 9), 2, 8).is_err());
+        assert!(profile(&model, &file(2, 11), 2, 7).is_err());
+        let cut = file(2, 9);
+        assert!(profile(&model, &cut[..cut.len() - 1], 2, 7).is_err());
+    }
 }
