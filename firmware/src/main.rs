@@ -14,7 +14,9 @@
 //!    frame (mix -> `set_mix`; phase in radians and f32 inputs -> quantise
 //!    -> integer inference with the frame's adapters -> de-quantise),
 //!    timing each with SysTick, and write the outputs and timings to
-//!    `phasegate-out.bin` through semihosting;
+//!    `phasegate-out.bin` through semihosting, and (except in the
+//!    controller build) each frame's SysTick ticks per stage (input, gate,
+//!    each node, output) to `phasegate-profile.bin`;
 //! 5. write the stack high-water mark and exit through semihosting.
 //!
 //! Logs are defmt frames on semihosting stdout; `host-sim target` decodes
@@ -44,7 +46,7 @@ use cortex_m_rt::{entry, exception, ExceptionFrame};
 use defmt::warn;
 use defmt::{error, info, Display2Format};
 use defmt_semihosting as _;
-use phasegate::blob::{LayerOp, MAGIC};
+use phasegate::blob::{LayerOp, Nodes as _, MAGIC};
 use phasegate::{Model, Phase, Runtime, Style};
 #[cfg(feature = "controller")]
 use phasegate_controller::{layout, Deadline, Locomotion, Network, TickSource};
@@ -146,6 +148,8 @@ struct Io {
     outputs_q: [i16; W],
     outputs: [f32; W],
     record: [u8; 8 + 6 * W],
+    /// The frame's stage timings (its profile record).
+    timer: measure::StageTimer,
 }
 
 static RUNTIME: Slot<Rt> = Slot::empty();
@@ -155,6 +159,7 @@ static IO: Slot<Io> = Slot::with(Io {
     outputs_q: [0; W],
     outputs: [0.0; W],
     record: [0; 8 + 6 * W],
+    timer: measure::StageTimer::new(),
 });
 
 extern "C" {
@@ -307,10 +312,17 @@ fn main() -> ! {
         mode: input.mode,
     };
     let mut file = create_output(&out_header);
+    let profile_header = wire::ProfileHeader {
+        frames: input.frames,
+        stages: wire::ProfileHeader::stages_for(rt.model().header().nodes.count()),
+        input_crc: input.crc,
+    };
+    let mut profile_file = PROFILE.then(|| create_profile(&profile_header));
 
     // Checked here rather than trusted, so no slice panics: a model wider
     // than the staging buffers is refused.
     let record_len = out_header.record_len();
+    let timer = &mut io.timer;
     let (Some(inputs), Some(inputs_q), Some(outputs_q), Some(outputs), Some(record)) = (
         io.inputs.get_mut(..input_dim),
         io.inputs_q.get_mut(..input_dim),
@@ -350,6 +362,9 @@ fn main() -> ! {
             );
             exit(wire::exit::FRAME_ERROR);
         }
+        // The profile's stages: input from here, then the runtime's marks
+        // (gate, each node's preparation and op), then output.
+        timer.start();
         let prepared = Phase::from_radians(input_record.phase).and_then(|phase| {
             rt.quantise_input(inputs, inputs_q)?;
             Ok(phase)
@@ -367,15 +382,17 @@ fn main() -> ! {
             }
         };
         let t1 = measure::now();
-        let result = rt
-            .run_quantised(phase, inputs_q)
-            .map(|q| outputs_q.copy_from_slice(q));
+        let result = infer(rt, phase, inputs_q, timer).map(|q| outputs_q.copy_from_slice(q));
         let t2 = measure::now();
         if let Err(e) = result.and_then(|()| rt.dequantise_output(outputs_q, outputs)) {
             error!("frame {=usize}: {} ({})", i, e, Display2Format(&e));
             exit(wire::exit::FRAME_ERROR);
         }
+        timer.close(wire::StageKind::Output, 0);
         let t3 = measure::now();
+        if let Some(f) = profile_file.as_mut() {
+            write_profile(timer, profile_header.record_len(), f);
+        }
         let head = wire::RecordHead {
             infer_ticks: measure::elapsed(t1, t2),
             frame_ticks: measure::elapsed(t0, t3),
@@ -393,7 +410,70 @@ fn main() -> ! {
         frames_done,
         wire::OUTPUT_FILE
     );
+    drop(profile_file);
     finish(frames_done, calib_ticks, Some(file));
+}
+
+/// Whether network frames are timed stage by stage and written to the
+/// profile file: not in the controller build, whose loop runs the executor
+/// through `Runtime::run` already, so probing here too would link a second
+/// copy of it (about 3 KB of `.text`).
+const PROFILE: bool = cfg!(not(feature = "controller"));
+
+/// One frame's integer inference, its stages timed by `timer`.
+#[cfg(not(feature = "controller"))]
+#[inline(always)]
+fn infer<'r>(
+    rt: &'r mut Rt,
+    phase: Phase,
+    inputs_q: &[i16],
+    timer: &mut measure::StageTimer,
+) -> phasegate::Result<&'r [i16]> {
+    rt.run_quantised_probed(phase, inputs_q, timer)
+}
+
+/// One frame's integer inference, untimed ([`PROFILE`]).
+#[cfg(feature = "controller")]
+#[inline(always)]
+fn infer<'r>(
+    rt: &'r mut Rt,
+    phase: Phase,
+    inputs_q: &[i16],
+    _: &mut measure::StageTimer,
+) -> phasegate::Result<&'r [i16]> {
+    rt.run_quantised(phase, inputs_q)
+}
+
+/// Writes the frame's profile record (`len` bytes: the model's stage
+/// count) to the profile file; exits with [`wire::exit::OUTPUT_ERROR`] when
+/// the count differs or the write fails.
+#[inline(never)]
+fn write_profile(timer: &measure::StageTimer, len: usize, file: &mut File) {
+    let Some(record) = timer.record().filter(|r| r.len() == len) else {
+        error!("unexpected number of stages in a frame");
+        exit(wire::exit::OUTPUT_ERROR);
+    };
+    if file.write_all(record).is_err() {
+        error!("cannot write {=str}", wire::PROFILE_FILE);
+        exit(wire::exit::OUTPUT_ERROR);
+    }
+}
+
+/// Creates the profile file and writes its header; exits with
+/// [`wire::exit::OUTPUT_ERROR`] on failure.
+fn create_profile(header: &wire::ProfileHeader) -> File {
+    let mut file = match File::create(c"phasegate-profile.bin") {
+        Ok(f) => f,
+        Err(_) => {
+            error!("cannot create {=str} on the host", wire::PROFILE_FILE);
+            exit(wire::exit::OUTPUT_ERROR);
+        }
+    };
+    if file.write_all(&header.encode()).is_err() {
+        error!("cannot write {=str}", wire::PROFILE_FILE);
+        exit(wire::exit::OUTPUT_ERROR);
+    }
+    file
 }
 
 /// Creates the output file and writes its header; exits with

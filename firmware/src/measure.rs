@@ -3,12 +3,15 @@
 //! SysTick runs from the 25 MHz system clock and `shift=0` makes each
 //! instruction take 1 ns of virtual time), and the stack high-water mark by
 //! painting the free stack at boot and finding the deepest overwritten word
-//! at the end.
+//! at the end. Also the per-stage timer the runtime's probe calls
+//! ([`StageTimer`]).
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use cortex_m::peripheral::{syst::SystClkSource, SCB, SYST};
 use cortex_m_rt::exception;
+use phasegate::{Mark, Probe};
+use phasegate_wire::{StageKind, StageTicks, STAGE_LEN};
 
 /// SysTick's reload value: the full 24-bit range, so it wraps every 2^24
 /// ticks (671 million instructions) and the handler counts the wraps.
@@ -29,6 +32,11 @@ pub fn start_ticks(syst: &mut SYST) {
     syst.clear_current();
     syst.enable_interrupt();
     syst.enable_counter();
+    // The first reload (and its wrap interrupt) comes a tick after
+    // enabling; a reading before it would be off by a whole period, so
+    // wait for it (the full firmware used to log here first; the inference
+    // core calibrates at once).
+    while WRAPS.load(Ordering::SeqCst) == 0 && SYST::get_current() == 0 {}
 }
 
 /// Ticks since [`start_ticks`], 64-bit.
@@ -136,4 +144,69 @@ pub fn stack_high_water() -> u32 {
         p += 4;
     }
     (top - p) as u32
+}
+
+/// Stages a frame can have: input, gate, gather and op of each node, output.
+pub const MAX_STAGES: usize = 2 * phasegate::blob::MAX_NODES + 3;
+
+/// The runtime's [`Probe`]: SysTick ticks of every stage of one frame,
+/// kept as the frame's profile record (`wire::StageTicks`, 8 bytes each).
+/// Each mark reads the raw 24-bit counter (no wrap handling): a stage
+/// longer than 2^24 ticks (671 million instructions) would be misread, far
+/// beyond any frame.
+pub struct StageTimer {
+    last: u32,
+    len: usize,
+    record: [u8; STAGE_LEN * MAX_STAGES],
+}
+
+impl StageTimer {
+    /// A timer with no stages.
+    pub const fn new() -> Self {
+        StageTimer {
+            last: 0,
+            len: 0,
+            record: [0; STAGE_LEN * MAX_STAGES],
+        }
+    }
+
+    /// Starts a frame: its input stage begins now.
+    #[inline(always)]
+    pub fn start(&mut self) {
+        self.len = 0;
+        self.last = SYST::get_current();
+    }
+
+    /// Ends the stage `kind` of `node` now; the next one begins. Not
+    /// inlined: one call per mark keeps the executor's code small.
+    #[inline(never)]
+    pub fn close(&mut self, kind: StageKind, node: u8) {
+        let now = SYST::get_current();
+        // SysTick counts down, modulo 2^24.
+        let ticks = self.last.wrapping_sub(now) & RELOAD;
+        self.last = now;
+        let at = self.len * STAGE_LEN;
+        if let Some(d) = self.record.get_mut(at..at + STAGE_LEN) {
+            d.copy_from_slice(&StageTicks { kind, node, ticks }.encode());
+        }
+        self.len += 1;
+    }
+
+    /// The frame's profile record; `None` if it had more than
+    /// [`MAX_STAGES`] stages.
+    pub fn record(&self) -> Option<&[u8]> {
+        self.record.get(..self.len * STAGE_LEN)
+    }
+}
+
+impl Probe for StageTimer {
+    #[inline(always)]
+    fn mark(&mut self, at: Mark) {
+        match at {
+            Mark::Start => self.close(StageKind::Input, 0),
+            Mark::Gate => self.close(StageKind::Gate, 0),
+            Mark::Gathered(i) => self.close(StageKind::Gather, i),
+            Mark::Done(i) => self.close(StageKind::Node, i),
+        }
+    }
 }

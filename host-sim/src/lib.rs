@@ -8,6 +8,7 @@ pub mod default_model;
 pub mod demo;
 pub mod demo_omg;
 pub mod eval;
+pub mod footprint;
 pub mod golden;
 pub mod npy;
 pub mod omg;

@@ -189,6 +189,13 @@ enum Command {
         )]
         overrun_policy: PolicyArg,
     },
+    /// Code size, static RAM and stack of the inference core, the firmware
+    /// and the controller firmware, each against its .text budget.
+    Footprint {
+        /// Also write the figures as JSON (one object per build).
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
     /// Check the firmware's log snapshots (firmware/snapshots), or bless new ones.
     FirmwareSnapshots {
         /// Write the current logs as the expected ones.
@@ -414,6 +421,7 @@ fn run(cli: Cli) -> Result<()> {
             })?;
             Ok(())
         }
+        Command::Footprint { json } => host_sim::footprint::footprint_cmd(json.as_deref()),
         Command::FirmwareSnapshots { overwrite } => {
             let outcomes = host_sim::target::snapshot::run_snapshots(overwrite)?;
             for (name, outcome) in &outcomes {

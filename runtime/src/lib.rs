@@ -27,6 +27,7 @@ pub(crate) mod fixed;
 pub mod graph;
 mod model;
 pub mod ops;
+pub mod probe;
 mod runtime;
 pub mod style;
 
@@ -37,5 +38,6 @@ pub use fixed::gate::Gate;
 pub use fixed::phase::Phase;
 pub use fixed::softmax::MAX_LOGITS;
 pub use model::{macs, node_gating, Model, MAX_GATES, STAGE};
+pub use probe::{Mark, NoProbe, Probe};
 pub use runtime::Runtime;
 pub use style::{Mix, Style, StyleId};

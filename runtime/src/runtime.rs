@@ -13,6 +13,7 @@ use crate::fixed::{round_shift, sat_i16};
 use crate::graph::{in_place, locate, within};
 use crate::model::{Model, MAX_GATES};
 use crate::ops::{GatedOp, Layer};
+use crate::probe::{Mark, NoProbe, Probe};
 use crate::style::{Mix, Style, StyleId};
 
 /// Runs a [`Model`] frame by frame, plain or with styles.
@@ -204,10 +205,21 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
     /// [`Runtime::quantise_input`]); returns the i16 outputs, before the
     /// output stage.
     pub fn run_quantised(&mut self, phase: Phase, input_q: &[i16]) -> Result<&[i16]> {
+        self.run_quantised_probed(phase, input_q, &mut NoProbe)
+    }
+
+    /// [`Runtime::run_quantised`], calling `probe` at every stage boundary
+    /// of the frame ([`Mark`]): how the firmware times each node.
+    pub fn run_quantised_probed<P: Probe>(
+        &mut self,
+        phase: Phase,
+        input_q: &[i16],
+        probe: &mut P,
+    ) -> Result<&[i16]> {
         check_len(self.model.input_dim(), input_q.len())?;
         let dst = span_mut(&mut self.arena.0, self.model.header().input)?;
         dst.copy_from_slice(input_q);
-        self.forward(phase)?;
+        self.forward(phase, probe)?;
         self.output()
     }
 
@@ -218,7 +230,7 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
         check_len(self.model.output_dim(), output.len())?;
         let dst = span_mut(&mut self.arena.0, self.model.header().input)?;
         self.clipped = quantise_into(&self.model, input, dst)?;
-        self.forward(phase)?;
+        self.forward(phase, &mut NoProbe)?;
         dequantise_into(&self.model, self.output()?, output)
     }
 
@@ -257,8 +269,10 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
     /// Not inlined: `run` and `run_quantised` share one copy (0.9 KB less
     /// `.text` on the Cortex-M4 firmware).
     #[inline(never)]
-    fn forward(&mut self, phase: Phase) -> Result<()> {
+    fn forward<P: Probe>(&mut self, phase: Phase, probe: &mut P) -> Result<()> {
+        probe.mark(Mark::Start);
         let phase_gate = self.model.gate(phase);
+        probe.mark(Mark::Gate);
         let mut gates = [Gate::SINGLE; MAX_GATES];
         // Each node's output span and gate slot, noted as it runs: later
         // nodes find their slices and gates here instead of decoding the
@@ -296,6 +310,7 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
                     at += usize::from(src.len);
                 }
             }
+            probe.mark(Mark::Gathered(id));
             let layer = match &node.op {
                 NodeOp::Softmax(s) => {
                     let logits = span_mut(&mut self.arena.0, node.input)?;
@@ -306,6 +321,7 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
                         *slot = softmaxes;
                     }
                     softmaxes = softmaxes.saturating_add(1);
+                    probe.mark(Mark::Done(id));
                     continue;
                 }
                 NodeOp::Layer(d) => Layer::new(self.model.payload(), *d, id)
@@ -324,6 +340,7 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
             let styled = adapters(&self.styles, &weights, i, &phase_gate, x, &mut self.scratch)?;
             if !styled {
                 layer.run(&gate, x, scratch, y)?;
+                probe.mark(Mark::Done(id));
                 continue;
             }
             // A residual node: the base layer without its activation, plus
@@ -342,6 +359,7 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
                     }
                 };
             }
+            probe.mark(Mark::Done(id));
         }
         Ok(())
     }

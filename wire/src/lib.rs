@@ -80,6 +80,16 @@
 //! Network-mode records (8 + 6 O bytes): u32 inference ticks, u32
 //! whole-frame ticks, O i16 quantised outputs, O f32 de-quantised outputs.
 //!
+//! Network mode also writes the **profile file** `phasegate-profile.bin`
+//! (version 1): where each frame's time went, stage by stage. A 32-byte
+//! header (`PGPF`, version, header length, N, stages per frame S, record
+//! length 8 S, the input image's CRC, 8 reserved bytes), then N records of
+//! S stages in frame order, 8 bytes each ([`StageTicks`]): kind u8
+//! ([`StageKind`]), node u8, 2 reserved bytes, u32 SysTick ticks. A model
+//! of `n` nodes has S = 2 n + 3: input, gate, then gather and op of each
+//! node, then output. Hosts that do not read it lose nothing: the output
+//! file is unchanged.
+//!
 //! Controller-mode records (16 + 4 x [`POSE_VALUES`] = 940 bytes): u32
 //! network ticks (the loop's `Network::predict`: `Runtime::run`,
 //! i.e. input quantisation, inference, de-quantisation), u32 frame ticks
@@ -588,6 +598,151 @@ pub fn decode_pose_record(buf: &[u8]) -> Option<(RecordHead, FrameStatus, Pose<f
     Some((head, status, pose))
 }
 
+/// File name of the profile file, relative to QEMU's working directory.
+pub const PROFILE_FILE: &str = "phasegate-profile.bin";
+/// Magic of the profile file.
+pub const PROFILE_MAGIC: [u8; 4] = *b"PGPF";
+/// Version of the profile file.
+pub const PROFILE_VERSION: u16 = 1;
+/// Bytes of one stage in a profile record.
+pub const STAGE_LEN: usize = 8;
+
+/// A stage of a frame in the profile file.
+#[derive(Clone, Copy, Debug, Eq, PartialEq, Hash, PartialOrd, Ord)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StageKind {
+    /// Input stage: phase conversion, input quantisation, and the copy
+    /// into the arena (0).
+    Input,
+    /// The phase gate's coefficients (1).
+    Gate,
+    /// Preparing a node: decoding its record from the blob header and
+    /// copying its input slices into its input span (2).
+    Gather,
+    /// A node's op: a layer with its requantisation, activation and style
+    /// adapters, or a softmax gate (3).
+    Node,
+    /// Output stage: locating and copying the output, de-quantisation (4).
+    Output,
+}
+
+impl StageKind {
+    /// The kind's number on the wire.
+    pub fn to_u8(self) -> u8 {
+        match self {
+            StageKind::Input => 0,
+            StageKind::Gate => 1,
+            StageKind::Gather => 2,
+            StageKind::Node => 3,
+            StageKind::Output => 4,
+        }
+    }
+
+    /// The kind with number `v`, if any.
+    pub fn from_u8(v: u8) -> Option<StageKind> {
+        Some(match v {
+            0 => StageKind::Input,
+            1 => StageKind::Gate,
+            2 => StageKind::Gather,
+            3 => StageKind::Node,
+            4 => StageKind::Output,
+            _ => return None,
+        })
+    }
+}
+
+/// One stage of one frame: what ran and how many SysTick ticks it took.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+pub struct StageTicks {
+    /// What ran.
+    pub kind: StageKind,
+    /// The node (0 for the input, gate and output stages).
+    pub node: u8,
+    /// SysTick ticks.
+    pub ticks: u32,
+}
+
+impl StageTicks {
+    /// A placeholder (input stage, 0 ticks), for filling arrays.
+    pub const ZERO: StageTicks = StageTicks {
+        kind: StageKind::Input,
+        node: 0,
+        ticks: 0,
+    };
+
+    /// The stage's 8 bytes.
+    pub fn encode(&self) -> [u8; STAGE_LEN] {
+        let mut b = [0u8; STAGE_LEN];
+        b[0] = self.kind.to_u8();
+        b[1] = self.node;
+        put_u32(&mut b, 4, self.ticks);
+        b
+    }
+
+    /// Decodes a stage; `None` for a wrong length or an unknown kind.
+    pub fn decode(b: &[u8]) -> Option<StageTicks> {
+        if b.len() != STAGE_LEN {
+            return None;
+        }
+        Some(StageTicks {
+            kind: StageKind::from_u8(*b.first()?)?,
+            node: *b.get(1)?,
+            ticks: u32_at(b, 4),
+        })
+    }
+}
+
+/// Header of the profile file.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+pub struct ProfileHeader {
+    /// Frames the firmware will write.
+    pub frames: u32,
+    /// Stages per frame: 2 x nodes + 3.
+    pub stages: u32,
+    /// The input image's CRC, echoed.
+    pub input_crc: u32,
+}
+
+impl ProfileHeader {
+    /// Stages per frame of a model of `nodes` nodes.
+    pub fn stages_for(nodes: usize) -> u32 {
+        2 * nodes as u32 + 3
+    }
+
+    /// Bytes of one record.
+    pub fn record_len(&self) -> usize {
+        STAGE_LEN * self.stages as usize
+    }
+
+    /// The 32 header bytes.
+    pub fn encode(&self) -> [u8; HEADER_LEN] {
+        let mut b = [0u8; HEADER_LEN];
+        b[..4].copy_from_slice(&PROFILE_MAGIC);
+        put_u16(&mut b, 4, PROFILE_VERSION);
+        put_u16(&mut b, 6, HEADER_LEN as u16);
+        put_u32(&mut b, 8, self.frames);
+        put_u32(&mut b, 12, self.stages);
+        put_u32(&mut b, 16, self.record_len() as u32);
+        put_u32(&mut b, 20, self.input_crc);
+        b
+    }
+
+    /// Parses the header at the start of `file`.
+    pub fn parse(file: &[u8]) -> Result<ProfileHeader, WireError> {
+        check_preamble(file, PROFILE_MAGIC, PROFILE_VERSION)?;
+        let h = ProfileHeader {
+            frames: u32_at(file, 8),
+            stages: u32_at(file, 12),
+            input_crc: u32_at(file, 20),
+        };
+        // Bounded first, so `record_len` cannot wrap on a 32-bit host.
+        if h.stages > 0x0100_0000 || u32_at(file, 16) as usize != h.record_len() {
+            return Err(WireError::BadHeader);
+        }
+        Ok(h)
+    }
+}
+
 /// Header of the output file.
 #[derive(Clone, Copy, Debug, Eq, PartialEq)]
 pub struct OutputHeader {
@@ -792,6 +947,33 @@ pub mod exit {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Profile headers and stages read back what was written; an unknown
+    /// stage kind or a wrapping stage count is refused.
+    #[test]
+    fn profile_round_trips() {
+        let h = ProfileHeader {
+            frames: 3,
+            stages: ProfileHeader::stages_for(4),
+            input_crc: 0xDEAD_BEEF,
+        };
+        assert_eq!(h.stages, 11);
+        assert_eq!(ProfileHeader::parse(&h.encode()), Ok(h));
+        let mut wide = h.encode();
+        wide[12..16].copy_from_slice(&0x2000_0001u32.to_le_bytes());
+        assert_eq!(ProfileHeader::parse(&wide), Err(WireError::BadHeader));
+        for kind in (0..5).filter_map(StageKind::from_u8) {
+            let st = StageTicks {
+                kind,
+                node: 7,
+                ticks: 123_456,
+            };
+            assert_eq!(StageTicks::decode(&st.encode()), Some(st));
+        }
+        let mut bad = StageTicks::ZERO.encode();
+        bad[0] = 5;
+        assert_eq!(StageTicks::decode(&bad), None);
+    }
 
     /// An output header whose width would make its record length wrap on a
     /// 32-bit host is refused, not read with a wrapped length.

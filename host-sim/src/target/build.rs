@@ -26,6 +26,8 @@ pub fn firmware_dir() -> PathBuf {
 pub const TARGET: &str = "thumbv7em-none-eabihf";
 /// Binary name of the firmware.
 pub const BIN: &str = "phasegate-firmware";
+/// Binary name of the inference core (`firmware/src/bin/inference_core.rs`).
+pub const CORE_BIN: &str = "inference-core";
 
 /// Outcome of one `cargo build`.
 #[derive(Debug)]
@@ -38,10 +40,20 @@ pub struct BuildOutput {
     pub elf: PathBuf,
 }
 
-/// Runs `cargo build --release` in the firmware directory with `features`,
-/// into `target_dir` (default `firmware/target`). Does not fail on a build
-/// error: see [`BuildOutput::success`].
+/// Runs `cargo build --release --bin phasegate-firmware` in the firmware
+/// directory with `features`, into `target_dir` (default
+/// `firmware/target`). Does not fail on a build error: see
+/// [`BuildOutput::success`].
 pub fn cargo_build(features: &[&str], target_dir: Option<&Path>) -> Result<BuildOutput> {
+    cargo_build_bin(BIN, features, target_dir)
+}
+
+/// [`cargo_build`] of the firmware package's binary `bin`.
+pub fn cargo_build_bin(
+    bin: &str,
+    features: &[&str],
+    target_dir: Option<&Path>,
+) -> Result<BuildOutput> {
     let dir = firmware_dir();
     let target_dir = target_dir
         .map(Path::to_path_buf)
@@ -50,6 +62,7 @@ pub fn cargo_build(features: &[&str], target_dir: Option<&Path>) -> Result<Build
     let mut cmd = Command::new(cargo);
     cmd.current_dir(&dir)
         .args(["build", "--release", "--quiet", "--target", TARGET])
+        .args(["--bin", bin])
         .arg("--target-dir")
         .arg(&target_dir);
     if !features.is_empty() {
@@ -75,13 +88,19 @@ pub fn cargo_build(features: &[&str], target_dir: Option<&Path>) -> Result<Build
     Ok(BuildOutput {
         success: out.status.success(),
         stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-        elf: target_dir.join(TARGET).join("release").join(BIN),
+        elf: target_dir.join(TARGET).join("release").join(bin),
     })
 }
 
 /// Builds the firmware if needed (cargo decides) and returns its ELF path.
 pub fn build_firmware() -> Result<PathBuf> {
-    build_checked(&[], None)
+    build_checked(BIN, &[], None)
+}
+
+/// Builds the inference core (beside the firmware, in `firmware/target`)
+/// if needed and returns its ELF path.
+pub fn build_inference_core() -> Result<PathBuf> {
+    build_checked(CORE_BIN, &[], None)
 }
 
 /// Builds the controller firmware (`--features controller`, into
@@ -89,13 +108,14 @@ pub fn build_firmware() -> Result<PathBuf> {
 /// firmware's ELF) if needed and returns its ELF path.
 pub fn build_controller_firmware() -> Result<PathBuf> {
     build_checked(
+        BIN,
         &["controller"],
         Some(&firmware_dir().join("target").join("controller")),
     )
 }
 
-fn build_checked(features: &[&str], target_dir: Option<&Path>) -> Result<PathBuf> {
-    let out = cargo_build(features, target_dir)?;
+fn build_checked(bin: &str, features: &[&str], target_dir: Option<&Path>) -> Result<PathBuf> {
+    let out = cargo_build_bin(bin, features, target_dir)?;
     if !out.success {
         let with = if features.is_empty() {
             String::new()
@@ -103,7 +123,7 @@ fn build_checked(features: &[&str], target_dir: Option<&Path>) -> Result<PathBuf
             format!(" --features {}", features.join(","))
         };
         bail!(
-            "firmware build failed (cargo build --release{with} in {}):\n{}\n(is the target installed? rustup target add {TARGET})",
+            "firmware build failed (cargo build --release --bin {bin}{with} in {}):\n{}\n(is the target installed? rustup target add {TARGET})",
             firmware_dir().display(),
             out.stderr.trim_end()
         );

@@ -21,7 +21,7 @@
 //! and every pose is compared with the same loop on the host.
 //!
 //! By concern: [`build`] (cargo), [`elf`] (symbols, sections), [`frames`]
-//! (inputs, golden vectors), [`styles`] (style images, mix schedules),
+//! (inputs, golden vectors), [`layers`] (per-stage figures), [`styles`] (style images, mix schedules),
 //! [`qemu`] and [`run`] (booting, outputs, the host's side), [`log`]
 //! (defmt), [`report`] (figures and budgets), [`snapshot`] (log
 //! snapshots), [`controller`] (controller mode), [`synthetic`] (test
@@ -31,6 +31,7 @@ pub mod build;
 pub mod controller;
 pub mod elf;
 pub mod frames;
+pub mod layers;
 pub mod log;
 pub mod qemu;
 pub mod report;
@@ -46,7 +47,10 @@ pub use phasegate_wire as wire;
 
 use std::path::PathBuf;
 
-pub use build::{build_controller_firmware, build_firmware, cargo_build, firmware_dir, repo_root};
+pub use build::{
+    build_controller_firmware, build_firmware, build_inference_core, cargo_build, firmware_dir,
+    repo_root,
+};
 pub use elf::ElfInfo;
 pub use frames::Frames;
 pub use qemu::qemu_available;

@@ -50,6 +50,8 @@ pub struct QemuRun {
     pub stderr: String,
     /// The firmware's output file, if it wrote one.
     pub output_file: Option<Vec<u8>>,
+    /// The firmware's profile file (network mode), if it wrote one.
+    pub profile_file: Option<Vec<u8>>,
     /// Wall time of the run.
     pub wall: Duration,
 }
@@ -139,11 +141,13 @@ pub fn run(elf: &Path, loads: &[Load], timeout: Duration) -> Result<QemuRun> {
         );
     };
     let output_file = std::fs::read(dir.path().join(wire::OUTPUT_FILE)).ok();
+    let profile_file = std::fs::read(dir.path().join(wire::PROFILE_FILE)).ok();
     Ok(QemuRun {
         exit_code,
         stdout,
         stderr,
         output_file,
+        profile_file,
         wall,
     })
 }

@@ -195,15 +195,15 @@ pub fn host_outputs(
 }
 
 /// The firmware's output file, parsed.
-struct TargetOutputs {
-    q: Vec<i16>,
-    f: Vec<f32>,
+pub(crate) struct TargetOutputs {
+    pub(crate) q: Vec<i16>,
+    pub(crate) f: Vec<f32>,
     infer_ticks: Vec<u64>,
     frame_ticks: Vec<u64>,
-    trailer: wire::Trailer,
+    pub(crate) trailer: wire::Trailer,
 }
 
-fn parse_outputs(
+pub(crate) fn parse_outputs(
     file: &[u8],
     frames: usize,
     output_dim: usize,
@@ -338,6 +338,16 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
     let out = parse_outputs(file, frames.len(), output_dim, input_crc)?;
     let t = out.trailer;
     check_calibration(&t)?;
+    // A firmware that writes no profile (an older build) just gives no
+    // per-stage table.
+    let stages = match booted.run.profile_file.as_deref() {
+        Some(file) => {
+            let model = Model::from_bytes(&blob)
+                .with_context(|| format!("{} is not a valid model blob", args.model.display()))?;
+            layers::profile(&model, file, frames.len(), input_crc)?
+        }
+        None => Vec::new(),
+    };
 
     let mut mismatches = 0;
     let mut first_mismatches = Vec::new();
@@ -383,6 +393,7 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         frame_instructions: Stats::of(&ticks_to_instr(&out.frame_ticks)),
         macs_per_frame: macs,
         per_frame: infer.iter().copied().zip(frame_macs).collect(),
+        stages,
         styles_image: (styles_image.len(), elf.styles.1 - elf.styles.0),
         styles: style_files,
         mix,

@@ -338,6 +338,7 @@ fn budgets_bite() {
         frame_instructions: Stats::default(),
         macs_per_frame: 1,
         per_frame: vec![],
+        stages: vec![],
         styles: vec![],
         styles_image: (0, 0),
         mix: MixSpec::default(),
