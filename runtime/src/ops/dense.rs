@@ -28,18 +28,52 @@ pub struct DenseLayer<'a> {
     pub index: u8,
 }
 
-/// Element type of a weight row.
+#[cfg(any(test, phasegate_dsp))]
+mod dsp;
+
+/// Storage order of a weight row, and the inputs in the same order.
 trait Weight {
+    /// The row's stored weights, in storage order.
     fn row(bytes: &[u8]) -> impl Iterator<Item = i32> + '_;
+    /// The inputs each stored weight meets, in storage order (0 against
+    /// padding).
+    fn xs(x: &[i16]) -> impl Iterator<Item = i32> + '_;
 }
 
+/// `WeightFormat::I8`.
 struct W8;
+/// `WeightFormat::I8Interleaved`.
+struct W8I;
+/// `WeightFormat::I16`.
 struct W16;
+
+#[inline(always)]
+fn plain(x: &[i16]) -> impl Iterator<Item = i32> + '_ {
+    x.iter().map(|&v| i32::from(v))
+}
 
 impl Weight for W8 {
     #[inline(always)]
     fn row(bytes: &[u8]) -> impl Iterator<Item = i32> + '_ {
         bytes.iter().map(|&b| i32::from(b as i8))
+    }
+    #[inline(always)]
+    fn xs(x: &[i16]) -> impl Iterator<Item = i32> + '_ {
+        plain(x)
+    }
+}
+
+impl Weight for W8I {
+    #[inline(always)]
+    fn row(bytes: &[u8]) -> impl Iterator<Item = i32> + '_ {
+        W8::row(bytes)
+    }
+    /// Storage slot `s` holds weight `position(s)` (the order is its own
+    /// inverse); slots past `in_dim` are padding.
+    #[inline(always)]
+    fn xs(x: &[i16]) -> impl Iterator<Item = i32> + '_ {
+        let f = WeightFormat::I8Interleaved;
+        (0..f.row_bytes(x.len())).map(move |s| x.get(f.position(s)).map_or(0, |&v| i32::from(v)))
     }
 }
 
@@ -51,6 +85,10 @@ impl Weight for W16 {
             .0
             .iter()
             .map(|c| i32::from(i16::from_le_bytes(*c)))
+    }
+    #[inline(always)]
+    fn xs(x: &[i16]) -> impl Iterator<Item = i32> + '_ {
+        plain(x)
     }
 }
 
@@ -64,7 +102,9 @@ trait Acc: Copy {
 
 impl Acc for i32 {
     const ZERO: Self = 0;
-    /// Cannot wrap: the loader proved `sum |w| * 2^15 <= i32::MAX` for every row.
+    /// Cannot wrap: the loader proved `sum |w| * 2^15 <= i32::MAX` for
+    /// every row. (Were it to, wrapping addition is exact modulo 2^32 in
+    /// any order, so every kernel would still agree bit for bit.)
     #[inline(always)]
     fn mac(self, product: i32) -> Self {
         self.wrapping_add(product)
@@ -90,8 +130,8 @@ impl Acc for i64 {
 #[inline(always)]
 fn dot1<W: Weight, A: Acc>(r: [&[u8]; 1], x: &[i16]) -> [A; 1] {
     let mut a = A::ZERO;
-    for (w, &v) in W::row(r[0]).zip(x) {
-        a = a.mac(w * i32::from(v));
+    for (w, v) in W::row(r[0]).zip(W::xs(x)) {
+        a = a.mac(w * v);
     }
     [a]
 }
@@ -99,8 +139,7 @@ fn dot1<W: Weight, A: Acc>(r: [&[u8]; 1], x: &[i16]) -> [A; 1] {
 #[inline(always)]
 fn dot2<W: Weight, A: Acc>(r: [&[u8]; 2], x: &[i16]) -> [A; 2] {
     let (mut a0, mut a1) = (A::ZERO, A::ZERO);
-    for ((w0, w1), &v) in W::row(r[0]).zip(W::row(r[1])).zip(x) {
-        let v = i32::from(v);
+    for ((w0, w1), v) in W::row(r[0]).zip(W::row(r[1])).zip(W::xs(x)) {
         a0 = a0.mac(w0 * v);
         a1 = a1.mac(w1 * v);
     }
@@ -114,8 +153,7 @@ fn dot4<W: Weight, A: Acc>(r: [&[u8]; 4], x: &[i16]) -> [A; 4] {
         .zip(W::row(r[1]))
         .zip(W::row(r[2]))
         .zip(W::row(r[3]));
-    for ((((w0, w1), w2), w3), &v) in rows.zip(x) {
-        let v = i32::from(v);
+    for ((((w0, w1), w2), w3), v) in rows.zip(W::xs(x)) {
         a0 = a0.mac(w0 * v);
         a1 = a1.mac(w1 * v);
         a2 = a2.mac(w2 * v);
@@ -124,9 +162,47 @@ fn dot4<W: Weight, A: Acc>(r: [&[u8]; 4], x: &[i16]) -> [A; 4] {
     [a0, a1, a2, a3]
 }
 
+/// The dot products of one pass over `x`: 1, 2 or 4 experts' rows (each
+/// `row_bytes` long) against the same inputs.
+trait Kernel {
+    fn dot1(r: [&[u8]; 1], x: &[i16]) -> [i64; 1];
+    fn dot2(r: [&[u8]; 2], x: &[i16]) -> [i64; 2];
+    fn dot4(r: [&[u8]; 4], x: &[i16]) -> [i64; 4];
+}
+
+/// The portable kernel: the reference, and the kernel of every target
+/// without the DSP extension.
+struct Portable<W, A>(core::marker::PhantomData<(W, A)>);
+
+impl<W: Weight, A: Acc> Kernel for Portable<W, A> {
+    #[inline(always)]
+    fn dot1(r: [&[u8]; 1], x: &[i16]) -> [i64; 1] {
+        dot1::<W, A>(r, x).map(Acc::widen)
+    }
+    #[inline(always)]
+    fn dot2(r: [&[u8]; 2], x: &[i16]) -> [i64; 2] {
+        dot2::<W, A>(r, x).map(Acc::widen)
+    }
+    #[inline(always)]
+    fn dot4(r: [&[u8]; 4], x: &[i16]) -> [i64; 4] {
+        dot4::<W, A>(r, x).map(Acc::widen)
+    }
+}
+
+/// The kernels of the two layouts the DSP kernels read, with 32-bit
+/// accumulators: `SMLAD` loops on Armv7E-M, the portable ones elsewhere.
+#[cfg(phasegate_dsp)]
+type Fast8 = dsp::Smlad<W8I, dsp::Asm>;
+#[cfg(not(phasegate_dsp))]
+type Fast8 = Portable<W8I, i32>;
+#[cfg(phasegate_dsp)]
+type Fast16 = dsp::Smlad<W16, dsp::Asm>;
+#[cfg(not(phasegate_dsp))]
+type Fast16 = Portable<W16, i32>;
+
 impl<'a> DenseLayer<'a> {
     fn row_bytes(&self) -> usize {
-        usize::from(self.desc.in_dim) * self.desc.weights.bytes()
+        self.desc.weights.row_bytes(usize::from(self.desc.in_dim))
     }
 
     /// Weight row `row` of expert `expert`.
@@ -139,7 +215,7 @@ impl<'a> DenseLayer<'a> {
     }
 
     /// The kernel with up to `PASS` (1, 2 or 4) experts per pass over `x`.
-    fn run_typed<W: Weight, A: Acc, const PASS: usize>(
+    fn run_typed<K: Kernel, const PASS: usize>(
         &self,
         gate: &Gate,
         x: &[i16],
@@ -168,12 +244,12 @@ impl<'a> DenseLayer<'a> {
                 let e = |k: usize| experts.get(first + k).copied().unwrap_or(0);
                 let accs: [i64; 4] = match (n - first).min(PASS) {
                     1 => {
-                        let [a] = dot1::<W, A>([self.row(e(0), i)?], x);
-                        [a.widen(), 0, 0, 0]
+                        let [a] = K::dot1([self.row(e(0), i)?], x);
+                        [a, 0, 0, 0]
                     }
                     2 => {
-                        let [a, b] = dot2::<W, A>([self.row(e(0), i)?, self.row(e(1), i)?], x);
-                        [a.widen(), b.widen(), 0, 0]
+                        let [a, b] = K::dot2([self.row(e(0), i)?, self.row(e(1), i)?], x);
+                        [a, b, 0, 0]
                     }
                     _ => {
                         let rows = [
@@ -182,7 +258,7 @@ impl<'a> DenseLayer<'a> {
                             self.row(e(2), i)?,
                             self.row(e(3), i)?,
                         ];
-                        dot4::<W, A>(rows, x).map(Acc::widen)
+                        K::dot4(rows, x)
                     }
                 };
                 let pass = experts
@@ -207,8 +283,8 @@ impl<'a> GatedOp<'a> for DenseLayer<'a> {
         active * u64::from(desc.in_dim) * u64::from(desc.out_dim)
     }
 
-    /// `weight_section`: `experts x out x in` weights; then biases and
-    /// records.
+    /// `weight_section`: `experts x out` rows of `in` weights (each padded
+    /// to 4 bytes for `I8Interleaved`); then biases and records.
     fn bind(payload: &'a [u8], desc: LayerDesc, index: u8) -> Result<Self> {
         check_dims(&desc, index)?;
         let s = Sections::new(payload, index);
@@ -216,8 +292,7 @@ impl<'a> GatedOp<'a> for DenseLayer<'a> {
             desc.weight_section,
             u64::from(desc.experts)
                 * u64::from(desc.out_dim)
-                * u64::from(desc.in_dim)
-                * desc.weights.bytes() as u64,
+                * desc.weights.row_bytes(usize::from(desc.in_dim)) as u64,
         )?;
         let (bias, requant) = s.rows(&desc)?;
         Ok(DenseLayer {
@@ -272,10 +347,14 @@ impl<'a> GatedOp<'a> for DenseLayer<'a> {
         match (self.desc.weights, self.desc.acc) {
             // 64-bit accumulators (rows too heavy for the 32-bit proof, rare)
             // take one expert per pass: a quarter of the unrolled code.
-            (WeightFormat::I8, AccWidth::I32) => self.run_typed::<W8, i32, 4>(gate, x, y),
-            (WeightFormat::I8, AccWidth::I64) => self.run_typed::<W8, i64, 1>(gate, x, y),
-            (WeightFormat::I16, AccWidth::I32) => self.run_typed::<W16, i32, 4>(gate, x, y),
-            (WeightFormat::I16, AccWidth::I64) => self.run_typed::<W16, i64, 1>(gate, x, y),
+            (WeightFormat::I8, AccWidth::I32) => self.run_typed::<Portable<W8, i32>, 4>(gate, x, y),
+            (WeightFormat::I8, AccWidth::I64) => self.run_typed::<Portable<W8, i64>, 1>(gate, x, y),
+            (WeightFormat::I8Interleaved, AccWidth::I32) => self.run_typed::<Fast8, 4>(gate, x, y),
+            (WeightFormat::I8Interleaved, AccWidth::I64) => {
+                self.run_typed::<Portable<W8I, i64>, 1>(gate, x, y)
+            }
+            (WeightFormat::I16, AccWidth::I32) => self.run_typed::<Fast16, 4>(gate, x, y),
+            (WeightFormat::I16, AccWidth::I64) => self.run_typed::<Portable<W16, i64>, 1>(gate, x, y),
         }
     }
 }
@@ -330,7 +409,10 @@ pub(crate) mod case {
     impl OpCase for Dense {
         type Op<'a> = DenseLayer<'a>;
 
-        fn random(rng: &mut Rng, shape: Shape, _gating: Gating) -> Self {
+        fn random(rng: &mut Rng, mut shape: Shape, _gating: Gating) -> Self {
+            if shape.weights == WeightFormat::I8 && rng.chance(50) {
+                shape.weights = WeightFormat::I8Interleaved;
+            }
             let mut w = shape.weights(rng, shape.experts * shape.out_dim * shape.in_dim);
             if shape.acc == AccWidth::I32 && rng.chance(90) {
                 fit_i32_rows(&mut w, shape.in_dim);
@@ -348,7 +430,7 @@ pub(crate) mod case {
 
         fn encode(&self, p: &mut Payload) -> LayerDesc {
             let mut d = self.rows.shape.desc(LayerOp::Dense);
-            d.weight_section = p.weights(&self.w, d.weights);
+            d.weight_section = p.rows(&self.w, self.rows.shape.in_dim, d.weights);
             self.rows.encode(p, &mut d);
             d
         }
@@ -396,7 +478,7 @@ pub(crate) mod case {
             let narrow = shape.acc == AccWidth::I32;
             let (n_min, n_hi) = match shape.weights {
                 WeightFormat::I16 => (1, 1),
-                WeightFormat::I8 => (511, 1),
+                WeightFormat::I8 | WeightFormat::I8Interleaved => (511, 1),
             };
             if narrow {
                 shape.in_dim = n_min + n_hi + rng.below(3);
