@@ -189,6 +189,36 @@ impl<W: Weight, A: Acc> Kernel for Portable<W, A> {
     }
 }
 
+/// A kernel as function pointers: one copy of the row loop (blend,
+/// requantisation, activation) serves every layout, which keeps the
+/// firmware's `.text` in budget; a call per pass costs nothing measurable.
+#[derive(Clone, Copy)]
+struct Dots {
+    one: fn([&[u8]; 1], &[i16]) -> [i64; 1],
+    two: Option<fn([&[u8]; 2], &[i16]) -> [i64; 2]>,
+    four: Option<fn([&[u8]; 4], &[i16]) -> [i64; 4]>,
+}
+
+impl Dots {
+    /// Up to four experts per pass.
+    fn of<K: Kernel>() -> Self {
+        Dots {
+            one: K::dot1,
+            two: Some(K::dot2),
+            four: Some(K::dot4),
+        }
+    }
+
+    /// One expert per pass.
+    fn one<K: Kernel>() -> Self {
+        Dots {
+            one: K::dot1,
+            two: None,
+            four: None,
+        }
+    }
+}
+
 /// The kernels of the two layouts the DSP kernels read, with 32-bit
 /// accumulators: `SMLAD` loops on Armv7E-M, the portable ones elsewhere.
 #[cfg(phasegate_dsp)]
@@ -214,13 +244,10 @@ impl<'a> DenseLayer<'a> {
             .ok_or(Error::SectionLength { layer: self.index })
     }
 
-    /// The kernel with up to `PASS` (1, 2 or 4) experts per pass over `x`.
-    fn run_typed<K: Kernel, const PASS: usize>(
-        &self,
-        gate: &Gate,
-        x: &[i16],
-        y: &mut [i16],
-    ) -> Result<()> {
+    /// The layer with kernel `k`: up to 4 experts per pass over `x` when it
+    /// has a 4-row kernel, else one.
+    fn run_with(&self, k: Dots, gate: &Gate, x: &[i16], y: &mut [i16]) -> Result<()> {
+        let step = if k.two.is_some() { 4 } else { 1 };
         let out = usize::from(self.desc.out_dim);
         let n_in = usize::from(self.desc.in_dim);
         let x = x.get(..n_in).ok_or(too_short(n_in, x.len()))?;
@@ -238,34 +265,37 @@ impl<'a> DenseLayer<'a> {
         let records = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
         for (i, (yi, rec)) in y.iter_mut().zip(records).enumerate() {
             let mut total = 0i64;
-            // Up to PASS experts per pass over `x`; a softmax gate's eight
+            // Up to `step` experts per pass over `x`; a softmax gate's eight
             // take two passes or more. The blend adds in gate order either way.
-            for first in (0..n).step_by(PASS) {
+            for first in (0..n).step_by(step) {
                 let e = |k: usize| experts.get(first + k).copied().unwrap_or(0);
-                let accs: [i64; 4] = match (n - first).min(PASS) {
+                let accs: [i64; 4] = match (n - first).min(step) {
                     1 => {
-                        let [a] = K::dot1([self.row(e(0), i)?], x);
+                        let [a] = (k.one)([self.row(e(0), i)?], x);
                         [a, 0, 0, 0]
                     }
-                    2 => {
-                        let [a, b] = K::dot2([self.row(e(0), i)?, self.row(e(1), i)?], x);
-                        [a, b, 0, 0]
-                    }
-                    _ => {
-                        let rows = [
-                            self.row(e(0), i)?,
-                            self.row(e(1), i)?,
-                            self.row(e(2), i)?,
-                            self.row(e(3), i)?,
-                        ];
-                        K::dot4(rows, x)
-                    }
+                    m => match (m, k.two, k.four) {
+                        (2, Some(two), _) => {
+                            let [a, b] = two([self.row(e(0), i)?, self.row(e(1), i)?], x);
+                            [a, b, 0, 0]
+                        }
+                        (_, _, Some(four)) => {
+                            let rows = [
+                                self.row(e(0), i)?,
+                                self.row(e(1), i)?,
+                                self.row(e(2), i)?,
+                                self.row(e(3), i)?,
+                            ];
+                            four(rows, x)
+                        }
+                        _ => [0; 4],
+                    },
                 };
                 let pass = experts
                     .iter()
                     .zip(&coefs)
                     .skip(first)
-                    .take((n - first).min(PASS));
+                    .take((n - first).min(step));
                 for ((&e, &g), &acc) in pass.zip(&accs) {
                     let b = bias_at(self.bias, bias_width, usize::from(e) * out + i).unwrap_or(0);
                     total = total.saturating_add(acc.saturating_add(b).saturating_mul(g));
@@ -344,18 +374,17 @@ impl<'a> GatedOp<'a> for DenseLayer<'a> {
 
     /// One pass over `x` per output row; no scratch.
     fn run(&self, gate: &Gate, x: &[i16], _scratch: &mut [i16], y: &mut [i16]) -> Result<()> {
-        match (self.desc.weights, self.desc.acc) {
+        let k = match (self.desc.weights, self.desc.acc) {
             // 64-bit accumulators (rows too heavy for the 32-bit proof, rare)
             // take one expert per pass: a quarter of the unrolled code.
-            (WeightFormat::I8, AccWidth::I32) => self.run_typed::<Portable<W8, i32>, 4>(gate, x, y),
-            (WeightFormat::I8, AccWidth::I64) => self.run_typed::<Portable<W8, i64>, 1>(gate, x, y),
-            (WeightFormat::I8Interleaved, AccWidth::I32) => self.run_typed::<Fast8, 4>(gate, x, y),
-            (WeightFormat::I8Interleaved, AccWidth::I64) => {
-                self.run_typed::<Portable<W8I, i64>, 1>(gate, x, y)
-            }
-            (WeightFormat::I16, AccWidth::I32) => self.run_typed::<Fast16, 4>(gate, x, y),
-            (WeightFormat::I16, AccWidth::I64) => self.run_typed::<Portable<W16, i64>, 1>(gate, x, y),
-        }
+            (WeightFormat::I8, AccWidth::I32) => Dots::of::<Portable<W8, i32>>(),
+            (WeightFormat::I8, AccWidth::I64) => Dots::one::<Portable<W8, i64>>(),
+            (WeightFormat::I8Interleaved, AccWidth::I32) => Dots::of::<Fast8>(),
+            (WeightFormat::I8Interleaved, AccWidth::I64) => Dots::one::<Portable<W8I, i64>>(),
+            (WeightFormat::I16, AccWidth::I32) => Dots::of::<Fast16>(),
+            (WeightFormat::I16, AccWidth::I64) => Dots::one::<Portable<W16, i64>>(),
+        };
+        self.run_with(k, gate, x, y)
     }
 }
 

@@ -14,7 +14,7 @@
 //! algorithm on the host, `firmware/src/bin/kernel-check.rs` the assembly
 //! under QEMU).
 
-use super::{dot1, Kernel, Weight, W16, W8I};
+use super::{Kernel, Weight, W16, W8I};
 use core::marker::PhantomData;
 
 #[cfg(phasegate_dsp)]
@@ -31,14 +31,42 @@ pub(super) const BLOCK: usize = 16;
 pub(super) trait Packed: Weight {
     /// Bytes of the weights of one input.
     const BYTES: usize;
+
+    /// The 32-bit (wrapping) dot product of a row that starts at a group
+    /// boundary with `x`: a plain loop, small rather than fast (it covers
+    /// fewer than [`BLOCK`] inputs, or rows that are not word-aligned).
+    fn tail(row: &[u8], x: &[i16]) -> i32;
 }
 
 impl Packed for W8I {
     const BYTES: usize = 1;
+
+    /// Group by group: stored `w0 w2 w1 w3` meet `x0 x2 x1 x3` (padding
+    /// meets nothing).
+    fn tail(row: &[u8], x: &[i16]) -> i32 {
+        let mut acc = 0i32;
+        for (g, w) in row.chunks(4).enumerate() {
+            for (s, &b) in w.iter().enumerate() {
+                let j = 4 * g + [0, 2, 1, 3][s];
+                if let Some(&v) = x.get(j) {
+                    acc = acc.wrapping_add(i32::from(b as i8) * i32::from(v));
+                }
+            }
+        }
+        acc
+    }
 }
 
 impl Packed for W16 {
     const BYTES: usize = 2;
+
+    fn tail(row: &[u8], x: &[i16]) -> i32 {
+        let mut acc = 0i32;
+        for (w, &v) in row.as_chunks::<2>().0.iter().zip(x) {
+            acc = acc.wrapping_add(i32::from(i16::from_le_bytes(*w)) * i32::from(v));
+        }
+        acc
+    }
 }
 
 /// A block loop over `N` (1 or 2) rows of layout `W`.
@@ -57,8 +85,9 @@ fn word_aligned<T>(s: &[T]) -> bool {
 }
 
 /// `rows`' dot products with `x`: the block loop `L` over the whole blocks,
-/// the portable kernel over the rest.
-#[inline(always)]
+/// [`Packed::tail`] over the rest. Not inlined: one copy per layout and row
+/// count keeps the firmware's `.text` in budget.
+#[inline(never)]
 fn pass<W: Packed, L: Blocks<W, N>, const N: usize>(rows: [&[u8]; N], x: &[i16]) -> [i32; N] {
     let n = x.len() / BLOCK * BLOCK;
     let mut heads: [&[u8]; N] = [&[]; N];
@@ -75,10 +104,11 @@ fn pass<W: Packed, L: Blocks<W, N>, const N: usize>(rows: [&[u8]; N], x: &[i16])
         Some(head) if fits => (unsafe { L::run(heads, head) }, n),
         _ => ([0; N], 0),
     };
-    let rest = x.get(done..).unwrap_or(&[]);
-    for (a, row) in acc.iter_mut().zip(rows) {
-        let [t] = dot1::<W, i32>([row.get(done * W::BYTES..).unwrap_or(&[])], rest);
-        *a = a.wrapping_add(t);
+    if done < x.len() {
+        let rest = x.get(done..).unwrap_or(&[]);
+        for (a, row) in acc.iter_mut().zip(rows) {
+            *a = a.wrapping_add(W::tail(row.get(done * W::BYTES..).unwrap_or(&[]), rest));
+        }
     }
     acc
 }
