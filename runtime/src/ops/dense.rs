@@ -261,7 +261,15 @@ impl<'a> DenseLayer<'a> {
             }
         }
         let n = gate.len();
+        // 32-bit accumulators and biases give `|acc + b| <= 2^32`; with
+        // `sum |g| < 2^31` every term and partial sum of the blend stays
+        // below 2^63 in magnitude, so none of its saturations can act and
+        // plain i64 arithmetic gives the same bits, without the M4's costly
+        // overflow checks.
+        let exact = self.desc.acc == AccWidth::I32
+            && coefs.iter().map(|g| g.unsigned_abs()).sum::<u64>() < 1 << 31;
         let bias_width = self.desc.acc.bytes();
+        let bias32 = self.bias.as_chunks::<4>().0;
         let records = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
         for (i, (yi, rec)) in y.iter_mut().zip(records).enumerate() {
             let mut total = 0i64;
@@ -297,8 +305,14 @@ impl<'a> DenseLayer<'a> {
                     .skip(first)
                     .take((n - first).min(step));
                 for ((&e, &g), &acc) in pass.zip(&accs) {
-                    let b = bias_at(self.bias, bias_width, usize::from(e) * out + i).unwrap_or(0);
-                    total = total.saturating_add(acc.saturating_add(b).saturating_mul(g));
+                    let at = usize::from(e) * out + i;
+                    total = if exact {
+                        let b = bias32.get(at).map_or(0, |c| i32::from_le_bytes(*c));
+                        total.wrapping_add(acc.wrapping_add(i64::from(b)).wrapping_mul(g))
+                    } else {
+                        let b = bias_at(self.bias, bias_width, at).unwrap_or(0);
+                        total.saturating_add(acc.saturating_add(b).saturating_mul(g))
+                    };
                 }
             }
             *yi = finish_row(total, rec, self.desc.activation);

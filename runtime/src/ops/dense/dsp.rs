@@ -15,6 +15,7 @@
 //! under QEMU).
 
 use super::{Kernel, Weight, W16, W8I};
+use crate::blob::WeightFormat;
 use core::marker::PhantomData;
 
 #[cfg(phasegate_dsp)]
@@ -41,16 +42,23 @@ pub(super) trait Packed: Weight {
 impl Packed for W8I {
     const BYTES: usize = 1;
 
-    /// Group by group: stored `w0 w2 w1 w3` meet `x0 x2 x1 x3` (padding
+    /// Group by group: stored `w0 w2 w1 w3` meet `x0 x2 x1 x3`; in the
+    /// last, partial group input `s` meets slot `position(s)` (padding
     /// meets nothing).
     fn tail(row: &[u8], x: &[i16]) -> i32 {
+        let w8 = |b: u8| i32::from(b as i8);
+        let (groups, _) = row.as_chunks::<4>();
+        let (xs, rest) = x.as_chunks::<4>();
         let mut acc = 0i32;
-        for (g, w) in row.chunks(4).enumerate() {
-            for (s, &b) in w.iter().enumerate() {
-                let j = 4 * g + [0, 2, 1, 3][s];
-                if let Some(&v) = x.get(j) {
-                    acc = acc.wrapping_add(i32::from(b as i8) * i32::from(v));
-                }
+        for (w, v) in groups.iter().zip(xs) {
+            let [x0, x1, x2, x3] = v.map(i32::from);
+            let t = w8(w[0]) * x0 + w8(w[1]) * x2 + w8(w[2]) * x1 + w8(w[3]) * x3;
+            acc = acc.wrapping_add(t);
+        }
+        if let Some(w) = groups.get(xs.len()) {
+            for (s, &v) in rest.iter().enumerate() {
+                let b = w.get(WeightFormat::I8Interleaved.position(s)).copied().unwrap_or(0);
+                acc = acc.wrapping_add(w8(b) * i32::from(v));
             }
         }
         acc
