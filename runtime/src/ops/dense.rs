@@ -222,6 +222,24 @@ impl Dots {
     }
 }
 
+/// The plain int8 layout of blobs written before `I8Interleaved`: the
+/// portable kernel everywhere; on the DSP target one expert per pass,
+/// which keeps the firmware's `.text` in budget (re-exporting such a blob
+/// gives it the DSP kernel).
+struct Legacy8;
+
+impl Legacy8 {
+    #[cfg(phasegate_dsp)]
+    fn dots() -> Dots {
+        Dots::one::<Portable<W8, i32>>()
+    }
+
+    #[cfg(not(phasegate_dsp))]
+    fn dots() -> Dots {
+        Dots::of::<Portable<W8, i32>>()
+    }
+}
+
 /// The kernels of the two layouts the DSP kernels read, with 32-bit
 /// accumulators: `SMLAD` loops on Armv7E-M, the portable ones elsewhere.
 #[cfg(phasegate_dsp)]
@@ -439,7 +457,7 @@ impl<'a> GatedOp<'a> for DenseLayer<'a> {
         let k = match (self.desc.weights, self.desc.acc) {
             // 64-bit accumulators (rows too heavy for the 32-bit proof, rare)
             // take one expert per pass: a quarter of the unrolled code.
-            (WeightFormat::I8, AccWidth::I32) => Dots::of::<Portable<W8, i32>>(),
+            (WeightFormat::I8, AccWidth::I32) => Legacy8::dots(),
             (WeightFormat::I8, AccWidth::I64) => Dots::one::<Portable<W8, i64>>(),
             (WeightFormat::I8Interleaved, AccWidth::I32) => Dots::of::<Fast8>(),
             (WeightFormat::I8Interleaved, AccWidth::I64) => Dots::one::<Portable<W8I, i64>>(),

@@ -15,7 +15,6 @@
 //! under QEMU).
 
 use super::{Kernel, Weight, W16, W8I};
-use crate::blob::WeightFormat;
 use core::marker::PhantomData;
 
 #[cfg(phasegate_dsp)]
@@ -45,6 +44,7 @@ impl Packed for W8I {
     /// Group by group: stored `w0 w2 w1 w3` meet `x0 x2 x1 x3`; in the
     /// last, partial group input `s` meets slot `position(s)` (padding
     /// meets nothing).
+    #[inline(never)]
     fn tail(row: &[u8], x: &[i16]) -> i32 {
         let w8 = |b: u8| i32::from(b as i8);
         let (groups, _) = row.as_chunks::<4>();
@@ -56,10 +56,9 @@ impl Packed for W8I {
             acc = acc.wrapping_add(t);
         }
         if let Some(w) = groups.get(xs.len()) {
-            for (s, &v) in rest.iter().enumerate() {
-                let b = w.get(WeightFormat::I8Interleaved.position(s)).copied().unwrap_or(0);
-                acc = acc.wrapping_add(w8(b) * i32::from(v));
-            }
+            // Inputs 0, 1, 2 of a partial group sit in slots 0, 2, 1.
+            let r = |s: usize| rest.get(s).map_or(0, |&v| i32::from(v));
+            acc = acc.wrapping_add(w8(w[0]) * r(0) + w8(w[2]) * r(1) + w8(w[1]) * r(2));
         }
         acc
     }
@@ -68,6 +67,7 @@ impl Packed for W8I {
 impl Packed for W16 {
     const BYTES: usize = 2;
 
+    #[inline(never)]
     fn tail(row: &[u8], x: &[i16]) -> i32 {
         let mut acc = 0i32;
         for (w, &v) in row.as_chunks::<2>().0.iter().zip(x) {
@@ -134,8 +134,14 @@ impl<W: Packed, L: Blocks<W, 1> + Blocks<W, 2>> Kernel for Smlad<W, L> {
     }
 
     fn dot4(r: [&[u8]; 4], x: &[i16]) -> [i64; 4] {
-        let [a, b] = pass::<W, L, 2>([r[0], r[1]], x);
-        let [c, d] = pass::<W, L, 2>([r[2], r[3]], x);
-        [a, b, c, d].map(i64::from)
+        quad::<W, L>(r, x)
     }
+}
+
+/// Four rows: two passes of two, in one call.
+#[inline(never)]
+fn quad<W: Packed, L: Blocks<W, 2>>(r: [&[u8]; 4], x: &[i16]) -> [i64; 4] {
+    let [a, b] = pass::<W, L, 2>([r[0], r[1]], x);
+    let [c, d] = pass::<W, L, 2>([r[2], r[3]], x);
+    [a, b, c, d].map(i64::from)
 }

@@ -74,8 +74,10 @@ fn i16_step(acc: &mut i32, row: &[u8], at: &mut usize, x: [u32; 4]) {
 /// The block loops, run on the emulated instructions.
 struct Emulated;
 
-/// The loop of `asm.rs`: per block, twice, eight inputs then each row's
-/// step; the count decremented to zero.
+/// The loops of `asm.rs`: a block is, twice, eight inputs then each row's
+/// step. One row: one block per iteration, the count decremented to zero.
+/// Two rows: the count halved (`lsrs`), a lone block when it was odd, then
+/// two blocks per iteration unless the halved count is zero (`beq`).
 fn blocks<const N: usize>(
     rows: [&[u8]; N],
     x: &[i16],
@@ -84,17 +86,33 @@ fn blocks<const N: usize>(
     assert!(!x.is_empty() && x.len().is_multiple_of(BLOCK), "contract: whole blocks");
     let mut acc = [0i32; N];
     let (mut xp, mut wp) = (0usize, [0usize; N]);
-    let mut count = x.len() / BLOCK;
-    loop {
+    let mut block = |acc: &mut [i32; N]| {
         for _ in 0..2 {
             let regs = ldm4(x, &mut xp);
             for ((a, row), p) in acc.iter_mut().zip(rows).zip(&mut wp) {
                 step(a, row, p, regs);
             }
         }
-        count -= 1;
-        if count == 0 {
-            break;
+    };
+    let mut count = x.len() / BLOCK;
+    if N == 2 {
+        let odd = count & 1 == 1;
+        count >>= 1;
+        if odd {
+            block(&mut acc);
+        }
+        while count != 0 {
+            block(&mut acc);
+            block(&mut acc);
+            count -= 1;
+        }
+    } else {
+        loop {
+            block(&mut acc);
+            count -= 1;
+            if count == 0 {
+                break;
+            }
         }
     }
     for (row, p) in rows.iter().zip(wp) {
