@@ -30,6 +30,9 @@ pub struct DenseLayer<'a> {
 
 #[cfg(any(test, phasegate_dsp))]
 mod dsp;
+/// The on-target self-test of the DSP kernels (`kernel-check` feature).
+#[cfg(all(feature = "kernel-check", phasegate_dsp))]
+pub use dsp::check::kernel_check;
 
 /// Storage order of a weight row, and the inputs in the same order.
 trait Weight {

@@ -21,6 +21,8 @@ use core::marker::PhantomData;
 mod asm;
 #[cfg(phasegate_dsp)]
 pub(super) use asm::Asm;
+#[cfg(all(feature = "kernel-check", phasegate_dsp))]
+pub(super) mod check;
 #[cfg(test)]
 mod emulation;
 
