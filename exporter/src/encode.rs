@@ -308,7 +308,13 @@ fn layer_sections(payload: &mut Payload, l: &QLayer, i: usize) -> Result<LayerDe
                     what: "cores",
                 });
             }
-            let bt = payload.push(&weight_bytes(&l.weights, d.weights, (r * inp, inp), i, "B")?)?;
+            let bt = payload.push(&weight_bytes(
+                &l.weights,
+                d.weights,
+                (r * inp, inp),
+                i,
+                "B",
+            )?)?;
             let a = payload.push(&weight_bytes(&cp.a, d.weights, (out * r, r), i, "A")?)?;
             let cores: Vec<u8> = cp.cores.iter().flat_map(|c| c.to_le_bytes()).collect();
             let cores = payload.push(&cores)?;

@@ -17,7 +17,11 @@ fn dsp_kernels_equal_the_portable_ones_under_qemu() {
     }
     let target_dir = firmware_dir().join("target").join("kernel-check");
     let build = cargo_build(&["kernel-check"], Some(&target_dir)).expect("cargo runs");
-    assert!(build.success, "kernel-check build failed:\n{}", build.stderr);
+    assert!(
+        build.success,
+        "kernel-check build failed:\n{}",
+        build.stderr
+    );
     let elf = target_dir.join(TARGET).join("release").join("kernel-check");
     let status = Command::new(qemu_binary())
         .args(["-machine", "mps2-an386", "-cpu", "cortex-m4"])
@@ -29,5 +33,9 @@ fn dsp_kernels_equal_the_portable_ones_under_qemu() {
         .stdout(std::process::Stdio::null())
         .status()
         .expect("QEMU runs");
-    assert_eq!(status.code(), Some(0), "kernel mismatch or fault on the target: {status}");
+    assert_eq!(
+        status.code(),
+        Some(0),
+        "kernel mismatch or fault on the target: {status}"
+    );
 }

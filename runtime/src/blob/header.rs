@@ -128,8 +128,8 @@ impl WeightFormat {
     /// Bytes of a stored row of `len` weights (`I8Interleaved` pads to 4).
     pub fn row_bytes(&self, len: usize) -> usize {
         match self {
-            WeightFormat::I8Interleaved => len.next_multiple_of(4),
-            WeightFormat::I8 | WeightFormat::I16 => len * self.bytes(),
+            WeightFormat::I8Interleaved => len.checked_next_multiple_of(4).unwrap_or(usize::MAX),
+            WeightFormat::I8 | WeightFormat::I16 => len.saturating_mul(self.bytes()),
         }
     }
 

@@ -197,13 +197,13 @@ impl<W: Weight, A: Acc> Kernel for Portable<W, A> {
 /// firmware's `.text` in budget; a call per pass costs nothing measurable.
 #[derive(Clone, Copy)]
 struct Dots {
-    one: fn([&[u8]; 1], &[i16]) -> [i64; 1],
-    two: Option<fn([&[u8]; 2], &[i16]) -> [i64; 2]>,
-    four: Option<Four>,
+    one: Rows<1>,
+    two: Option<Rows<2>>,
+    four: Option<Rows<4>>,
 }
 
-/// A four-row kernel.
-type Four = fn([&[u8]; 4], &[i16]) -> [i64; 4];
+/// An `N`-row kernel.
+type Rows<const N: usize> = fn([&[u8]; N], &[i16]) -> [i64; N];
 
 impl Dots {
     /// Up to four experts per pass.
@@ -296,7 +296,11 @@ impl<'a> DenseLayer<'a> {
         let bias32 = self.bias.as_chunks::<4>().0;
         let records = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
         if let (true, 4, Some(four)) = (exact, n, k.four) {
-            return self.run_four(four, [0, 1, 2, 3].map(|s| (experts[s], coefs[s])), x, y);
+            let active = |s: usize| {
+                let e = experts.get(s).copied().unwrap_or(0);
+                (e, coefs.get(s).copied().unwrap_or(0))
+            };
+            return self.run_four(four, [0, 1, 2, 3].map(active), x, y);
         }
         for (i, (yi, rec)) in y.iter_mut().zip(records).enumerate() {
             let mut total = 0i64;
@@ -352,18 +356,28 @@ impl DenseLayer<'_> {
     /// `run_with` for exactly four experts and an exact blend (the cubic
     /// phase gate's case): the same arithmetic, with each expert's rows and
     /// biases walked in step instead of indexed per row.
-    fn run_four(&self, four: Four, active: [(u16, i64); 4], x: &[i16], y: &mut [i16]) -> Result<()> {
+    fn run_four(
+        &self,
+        four: Rows<4>,
+        active: [(u16, i64); 4],
+        x: &[i16],
+        y: &mut [i16],
+    ) -> Result<()> {
         let out = usize::from(self.desc.out_dim);
         let rb = self.row_bytes().max(1);
         let bias32 = self.bias.as_chunks::<4>().0;
         let records = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
         let too_short = Error::SectionLength { layer: self.index };
-        let expert = |(e, _): (u16, i64)| -> Result<(core::slice::ChunksExact<'_, u8>, &[[u8; 4]])> {
-            let first = usize::from(e) * out;
-            let w = self.weights.get(first * rb..(first + out) * rb).ok_or(too_short)?;
-            let b = bias32.get(first..first + out).ok_or(too_short)?;
-            Ok((w.chunks_exact(rb), b))
-        };
+        let expert =
+            |(e, _): (u16, i64)| -> Result<(core::slice::ChunksExact<'_, u8>, &[[u8; 4]])> {
+                let first = usize::from(e) * out;
+                let w = self
+                    .weights
+                    .get(first * rb..(first + out) * rb)
+                    .ok_or(too_short)?;
+                let b = bias32.get(first..first + out).ok_or(too_short)?;
+                Ok((w.chunks_exact(rb), b))
+            };
         let [(mut w0, b0), (mut w1, b1), (mut w2, b2), (mut w3, b3)] = [
             expert(active[0])?,
             expert(active[1])?,
@@ -372,16 +386,25 @@ impl DenseLayer<'_> {
         ];
         let g = active.map(|(_, g)| g);
         let b32 = |b: &[u8; 4]| i64::from(i32::from_le_bytes(*b));
-        let rows = y.iter_mut().zip(records).zip(b0.iter().zip(b1).zip(b2.iter().zip(b3)));
+        let rows = y
+            .iter_mut()
+            .zip(records)
+            .zip(b0.iter().zip(b1).zip(b2.iter().zip(b3)));
         for ((yi, rec), ((c0, c1), (c2, c3))) in rows {
-            let (Some(r0), Some(r1), Some(r2), Some(r3)) = (w0.next(), w1.next(), w2.next(), w3.next())
+            let (Some(r0), Some(r1), Some(r2), Some(r3)) =
+                (w0.next(), w1.next(), w2.next(), w3.next())
             else {
                 return Err(too_short);
             };
             let [a0, a1, a2, a3] = four([r0, r1, r2, r3], x);
             // Gate order, wrapping: exact here (see `exact` in `run_with`).
             let mut total = 0i64;
-            for (a, (b, g)) in [(a0, (c0, g[0])), (a1, (c1, g[1])), (a2, (c2, g[2])), (a3, (c3, g[3]))] {
+            for (a, (b, g)) in [
+                (a0, (c0, g[0])),
+                (a1, (c1, g[1])),
+                (a2, (c2, g[2])),
+                (a3, (c3, g[3])),
+            ] {
                 total = total.wrapping_add(a.wrapping_add(b32(b)).wrapping_mul(g));
             }
             *yi = finish_row(total, rec, self.desc.activation);

@@ -22,15 +22,41 @@ pub(in crate::ops::dense) struct Asm;
 macro_rules! i8_step {
     ($acc:literal, $ptr:literal, $t:literal) => {
         concat!(
-            "ldrd r12, lr, [", $ptr, "], #8\n",
-            "sxtb16 ", $t, ", r12\n",
-            "smlad ", $acc, ", ", $t, ", r2, ", $acc, "\n",
+            "ldrd r12, lr, [",
+            $ptr,
+            "], #8\n",
+            "sxtb16 ",
+            $t,
+            ", r12\n",
+            "smlad ",
+            $acc,
+            ", ",
+            $t,
+            ", r2, ",
+            $acc,
+            "\n",
             "sxtb16 r12, r12, ror #8\n",
-            "smlad ", $acc, ", r12, r3, ", $acc, "\n",
-            "sxtb16 ", $t, ", lr\n",
-            "smlad ", $acc, ", ", $t, ", r4, ", $acc, "\n",
+            "smlad ",
+            $acc,
+            ", r12, r3, ",
+            $acc,
+            "\n",
+            "sxtb16 ",
+            $t,
+            ", lr\n",
+            "smlad ",
+            $acc,
+            ", ",
+            $t,
+            ", r4, ",
+            $acc,
+            "\n",
             "sxtb16 lr, lr, ror #8\n",
-            "smlad ", $acc, ", lr, r5, ", $acc, "\n",
+            "smlad ",
+            $acc,
+            ", lr, r5, ",
+            $acc,
+            "\n",
         )
     };
 }
@@ -39,12 +65,32 @@ macro_rules! i8_step {
 macro_rules! i16_step {
     ($acc:literal, $ptr:literal) => {
         concat!(
-            "ldrd r12, lr, [", $ptr, "], #8\n",
-            "smlad ", $acc, ", r12, r2, ", $acc, "\n",
-            "smlad ", $acc, ", lr, r3, ", $acc, "\n",
-            "ldrd r12, lr, [", $ptr, "], #8\n",
-            "smlad ", $acc, ", r12, r4, ", $acc, "\n",
-            "smlad ", $acc, ", lr, r5, ", $acc, "\n",
+            "ldrd r12, lr, [",
+            $ptr,
+            "], #8\n",
+            "smlad ",
+            $acc,
+            ", r12, r2, ",
+            $acc,
+            "\n",
+            "smlad ",
+            $acc,
+            ", lr, r3, ",
+            $acc,
+            "\n",
+            "ldrd r12, lr, [",
+            $ptr,
+            "], #8\n",
+            "smlad ",
+            $acc,
+            ", r12, r4, ",
+            $acc,
+            "\n",
+            "smlad ",
+            $acc,
+            ", lr, r5, ",
+            $acc,
+            "\n",
         )
     };
 }
@@ -53,10 +99,12 @@ macro_rules! i16_step {
 macro_rules! i8_block2 {
     () => {
         concat!(
-            load_x!(), "\n",
+            load_x!(),
+            "\n",
             i8_step!("r0", "r8", "r6"),
             i8_step!("r1", "r9", "r6"),
-            load_x!(), "\n",
+            load_x!(),
+            "\n",
             i8_step!("r0", "r8", "r6"),
             i8_step!("r1", "r9", "r6"),
         )
@@ -67,10 +115,12 @@ macro_rules! i8_block2 {
 macro_rules! i16_block2 {
     () => {
         concat!(
-            load_x!(), "\n",
+            load_x!(),
+            "\n",
             i16_step!("r0", "r8"),
             i16_step!("r1", "r9"),
-            load_x!(), "\n",
+            load_x!(),
+            "\n",
             i16_step!("r0", "r8"),
             i16_step!("r1", "r9"),
         )

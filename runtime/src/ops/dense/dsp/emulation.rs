@@ -83,7 +83,10 @@ fn blocks<const N: usize>(
     x: &[i16],
     step: fn(&mut i32, &[u8], &mut usize, [u32; 4]),
 ) -> [i32; N] {
-    assert!(!x.is_empty() && x.len().is_multiple_of(BLOCK), "contract: whole blocks");
+    assert!(
+        !x.is_empty() && x.len().is_multiple_of(BLOCK),
+        "contract: whole blocks"
+    );
     let mut acc = [0i32; N];
     let (mut xp, mut wp) = (0usize, [0usize; N]);
     let mut block = |acc: &mut [i32; N]| {
@@ -204,7 +207,9 @@ fn case() -> impl Strategy<Value = Case> {
                 .map(|_| (0..in_dim).map(|_| edgy(span, lo) as i32).collect())
                 .collect();
             let x = (0..in_dim).map(|_| edgy(65536, -32768) as i16).collect();
-            let row_misalign = (0..experts).map(|k| if k == 0 { rmis } else { 0 }).collect();
+            let row_misalign = (0..experts)
+                .map(|k| if k == 0 { rmis } else { 0 })
+                .collect();
             Case {
                 format,
                 w,
@@ -231,12 +236,11 @@ fn encode(row: &[i32], format: WeightFormat) -> Vec<u8> {
 /// The kernels' dot products for `c`: (Smlad over Emulated, Portable, exact
 /// sum modulo 2^32).
 fn run(c: &Case) -> (Vec<i64>, Vec<i64>, Vec<i64>) {
-    let stored: Vec<_> = c
-        .w
-        .iter()
-        .zip(&c.row_misalign)
-        .map(|(r, &m)| placed(&encode(r, c.format), m))
-        .collect();
+    let stored: Vec<_> =
+        c.w.iter()
+            .zip(&c.row_misalign)
+            .map(|(r, &m)| placed(&encode(r, c.format), m))
+            .collect();
     let rows: Vec<&[u8]> = stored
         .iter()
         .zip(&c.w)
@@ -247,14 +251,17 @@ fn run(c: &Case) -> (Vec<i64>, Vec<i64>, Vec<i64>) {
     let start = (off + c.x_misalign) % 2;
     xbuf[start..start + c.x.len()].copy_from_slice(&c.x);
     let x = &xbuf[start..start + c.x.len()];
-    let exact = c
-        .w
-        .iter()
-        .map(|r| {
-            let s: i64 = r.iter().zip(&c.x).map(|(&w, &v)| i64::from(w) * i64::from(v)).sum();
-            i64::from(s as i32)
-        })
-        .collect();
+    let exact =
+        c.w.iter()
+            .map(|r| {
+                let s: i64 = r
+                    .iter()
+                    .zip(&c.x)
+                    .map(|(&w, &v)| i64::from(w) * i64::from(v))
+                    .sum();
+                i64::from(s as i32)
+            })
+            .collect();
     fn both<K: Kernel>(rows: &[&[u8]], x: &[i16]) -> Vec<i64> {
         match rows.len() {
             1 => K::dot1([rows[0]], x).to_vec(),
