@@ -226,15 +226,22 @@ impl Dots {
 }
 
 /// The plain int8 layout of blobs written before `I8Interleaved`: the
-/// portable kernel everywhere; on the DSP target one expert per pass,
-/// which keeps the firmware's `.text` in budget (re-exporting such a blob
-/// gives it the DSP kernel).
+/// portable kernel everywhere; on the DSP target without its two-row
+/// variant (two experts take the four-row kernel, two of its rows unused),
+/// which keeps the firmware's `.text` in budget while the cubic gate's
+/// four experts keep their speed (re-exporting such a blob gives it the
+/// DSP kernel).
 struct Legacy8;
 
 impl Legacy8 {
     #[cfg(phasegate_dsp)]
     fn dots() -> Dots {
-        Dots::one::<Portable<W8, i32>>()
+        type K = Portable<W8, i32>;
+        Dots {
+            one: K::dot1,
+            two: None,
+            four: Some(K::dot4),
+        }
     }
 
     #[cfg(not(phasegate_dsp))]
@@ -271,7 +278,7 @@ impl<'a> DenseLayer<'a> {
     /// The layer with kernel `k`: up to 4 experts per pass over `x` when it
     /// has a 4-row kernel, else one.
     fn run_with(&self, k: Dots, gate: &Gate, x: &[i16], y: &mut [i16]) -> Result<()> {
-        let step = if k.two.is_some() { 4 } else { 1 };
+        let step = if k.four.is_some() { 4 } else { 1 };
         let out = usize::from(self.desc.out_dim);
         let n_in = usize::from(self.desc.in_dim);
         let x = x.get(..n_in).ok_or(too_short(n_in, x.len()))?;
