@@ -275,8 +275,10 @@ fn layer_sections(payload: &mut Payload, l: &QLayer, i: usize) -> Result<LayerDe
     match d.op {
         LayerOp::Dense => {
             // int8 dense rows go in the order the DSP kernel reads
-            // (`docs/blob-format.md`, "Weight layouts"); every build reads it.
-            if d.weights == WeightFormat::I8 {
+            // (`docs/blob-format.md`, "Weights"); every build reads it. Rows
+            // narrower than its block of 16 inputs never reach its loop and
+            // stay plain (no padding).
+            if d.weights == WeightFormat::I8 && inp >= 16 {
                 desc.weights = WeightFormat::I8Interleaved;
             }
             desc.weight_section = payload.push(&weight_bytes(
