@@ -14,7 +14,16 @@
 //! All constants are here, in one place, so a faster kernel is one edit
 //! (and a re-run of the commands below). They are in milli-instructions.
 //!
-//! Measured on 2026-11-30 on the kernels of commit 79f31fa, whole-frame
+//! Re-measured after the DSP kernels landed (interleaved int8 layout,
+//! `docs/fixed-point.md`), inference medians: `tests/golden/default`
+//! (now interleaved) 281,520; real PFNN int8 (interleaved) 3,639,600;
+//! `tests/golden/dense-int16` 757,640; the default model's plain-layout
+//! int8 blob 436,080. The two interleaved shapes fix
+//! [`PER_MAC_I8_INTERLEAVED`] and [`PER_ROW_I8_INTERLEAVED`]; the plain
+//! int8 and the int16 blob each fix their per-MAC constant with
+//! [`PER_ROW`] kept (one blob each).
+//!
+//! First measured on 2026-11-30 on the kernels of commit 79f31fa, whole-frame
 //! medians of `host-sim target --model <blob>` (64 golden or 16 generated
 //! frames):
 //!
@@ -48,10 +57,16 @@ use phasegate::ops::{GatedOp, Layer};
 use phasegate::{node_gating, Model};
 use serde::Serialize;
 
-/// Milli-instructions per multiply-accumulate of an int8 layer.
-pub const PER_MAC_I8: u64 = 3_255;
+/// Milli-instructions per multiply-accumulate of an int8 layer in the
+/// interleaved layout (the DSP kernel on the target).
+pub const PER_MAC_I8_INTERLEAVED: u64 = 1_273;
+/// Milli-instructions per output row of an interleaved int8 layer.
+pub const PER_ROW_I8_INTERLEAVED: u64 = 452_000;
+/// Milli-instructions per multiply-accumulate of an int8 layer in the
+/// plain layout (blobs of older exporters, rows under 16 inputs).
+pub const PER_MAC_I8: u64 = 2_347;
 /// Milli-instructions per multiply-accumulate of an int16 layer.
-pub const PER_MAC_I16: u64 = 4_374;
+pub const PER_MAC_I16: u64 = 6_015;
 /// Milli-instructions per output row of a layer (bias blend,
 /// requantisation, activation).
 pub const PER_ROW: u64 = 614_000;
@@ -62,12 +77,13 @@ pub const PER_IO_VALUE: u64 = 59_600;
 /// blobs' whole frame, percent (checked by host-sim's QEMU test).
 pub const TOLERANCE_PERCENT: u64 = 15;
 
-/// Milli-instructions per MAC of a layer, whatever its op (CP and
-/// diagonal as dense: see the module docs).
-fn per_mac(d: &LayerDesc) -> u64 {
+/// Milli-instructions per MAC and per output row of a layer, whatever its
+/// op (CP and diagonal as dense: see the module docs).
+fn per_mac_and_row(d: &LayerDesc) -> (u64, u64) {
     match d.weights {
-        WeightFormat::I8 => PER_MAC_I8,
-        WeightFormat::I16 => PER_MAC_I16,
+        WeightFormat::I8 => (PER_MAC_I8, PER_ROW),
+        WeightFormat::I16 => (PER_MAC_I16, PER_ROW),
+        WeightFormat::I8Interleaved => (PER_MAC_I8_INTERLEAVED, PER_ROW_I8_INTERLEAVED),
     }
 }
 
@@ -83,7 +99,8 @@ pub fn estimate_instructions(model: &Model<'_>) -> u64 {
             let d = *n.layer()?;
             let active = node_gating(&h.gating, &h.nodes, &n).active() as u64;
             let macs = <Layer<'_> as GatedOp<'_>>::macs(&d, active);
-            Some(macs * per_mac(&d) + u64::from(d.out_dim) * PER_ROW)
+            let (per_mac, per_row) = per_mac_and_row(&d);
+            Some(macs * per_mac + u64::from(d.out_dim) * per_row)
         })
         .sum();
     let io = (model.input_dim() + model.output_dim()) as u64 * PER_IO_VALUE;

@@ -195,23 +195,33 @@ impl Payload {
     }
 }
 
+/// `n` weights as rows of `width` in `format`'s storage order (each row
+/// padded to `format.row_bytes(width)`).
 fn weight_bytes(
     w: &[i32],
     format: WeightFormat,
-    n: usize,
+    (n, width): (usize, usize),
     layer: usize,
     what: &'static str,
 ) -> Result<Vec<u8>, EncodeError> {
-    if w.len() != n {
+    if w.len() != n || width == 0 || !n.is_multiple_of(width) {
         return Err(EncodeError::Length { layer, what });
     }
     let bad = || EncodeError::OutOfRange { layer, what };
-    let mut out = Vec::with_capacity(n * format.bytes());
-    for &v in w {
-        match format {
-            WeightFormat::I8 => out.push(i8::try_from(v).map_err(|_| bad())? as u8),
-            WeightFormat::I16 => out.extend(i16::try_from(v).map_err(|_| bad())?.to_le_bytes()),
+    let mut out = Vec::with_capacity(n / width * format.row_bytes(width));
+    for row in w.chunks(width) {
+        let mut stored = vec![0u8; format.row_bytes(width)];
+        for (j, &v) in row.iter().enumerate() {
+            let s = format.position(j) * format.bytes();
+            match format {
+                WeightFormat::I8 | WeightFormat::I8Interleaved => {
+                    stored[s] = i8::try_from(v).map_err(|_| bad())? as u8
+                }
+                WeightFormat::I16 => stored[s..s + 2]
+                    .copy_from_slice(&i16::try_from(v).map_err(|_| bad())?.to_le_bytes()),
+            }
         }
+        out.extend(stored);
     }
     Ok(out)
 }
@@ -264,10 +274,17 @@ fn layer_sections(payload: &mut Payload, l: &QLayer, i: usize) -> Result<LayerDe
     let mut desc = d;
     match d.op {
         LayerOp::Dense => {
+            // int8 dense rows go in the order the DSP kernel reads
+            // (`docs/blob-format.md`, "Weights"); every build reads it. Rows
+            // narrower than its block of 16 inputs never reach its loop and
+            // stay plain (no padding).
+            if d.weights == WeightFormat::I8 && inp >= 16 {
+                desc.weights = WeightFormat::I8Interleaved;
+            }
             desc.weight_section = payload.push(&weight_bytes(
                 &l.weights,
-                d.weights,
-                experts * out * inp,
+                desc.weights,
+                (experts * out * inp, inp),
                 i,
                 "weights",
             )?)?;
@@ -276,7 +293,7 @@ fn layer_sections(payload: &mut Payload, l: &QLayer, i: usize) -> Result<LayerDe
             desc.weight_section = payload.push(&weight_bytes(
                 &l.weights,
                 d.weights,
-                experts * out,
+                (experts * out, out),
                 i,
                 "weights",
             )?)?;
@@ -293,8 +310,14 @@ fn layer_sections(payload: &mut Payload, l: &QLayer, i: usize) -> Result<LayerDe
                     what: "cores",
                 });
             }
-            let bt = payload.push(&weight_bytes(&l.weights, d.weights, r * inp, i, "B")?)?;
-            let a = payload.push(&weight_bytes(&cp.a, d.weights, out * r, i, "A")?)?;
+            let bt = payload.push(&weight_bytes(
+                &l.weights,
+                d.weights,
+                (r * inp, inp),
+                i,
+                "B",
+            )?)?;
+            let a = payload.push(&weight_bytes(&cp.a, d.weights, (out * r, r), i, "A")?)?;
             let cores: Vec<u8> = cp.cores.iter().flat_map(|c| c.to_le_bytes()).collect();
             let cores = payload.push(&cores)?;
             let mid: Vec<u8> = cp.mid.iter().flat_map(MidRecord::to_bytes).collect();

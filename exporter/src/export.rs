@@ -90,7 +90,7 @@ activations are i16, so this holds for any input, not only the calibrated range"
 /// "int8" or "int16".
 pub fn format_name(w: WeightFormat) -> &'static str {
     match w {
-        WeightFormat::I8 => "int8",
+        WeightFormat::I8 | WeightFormat::I8Interleaved => "int8",
         WeightFormat::I16 => "int16",
     }
 }

@@ -135,7 +135,7 @@ pub fn node_table(gating: &Gating, nodes: &[Node]) -> String {
                 Layer::macs(l, node_gating(gating, nodes, n).active() as u64),
                 (
                     match l.weights {
-                        WeightFormat::I8 => "int8",
+                        WeightFormat::I8 | WeightFormat::I8Interleaved => "int8",
                         WeightFormat::I16 => "int16",
                     },
                     match l.acc {

@@ -232,7 +232,7 @@ pub(crate) fn bits(v: f64) -> f64 {
 /// Largest integer weight of a format.
 pub(crate) fn qmax(format: WeightFormat) -> f64 {
     match format {
-        WeightFormat::I8 => 127.0,
+        WeightFormat::I8 | WeightFormat::I8Interleaved => 127.0,
         WeightFormat::I16 => 32767.0,
     }
 }

@@ -1007,6 +1007,7 @@ mod spec {
                 weights: match self.tag()? {
                     0 => WeightFormat::I8,
                     1 => WeightFormat::I16,
+                    2 => WeightFormat::I8Interleaved,
                     _ => return None,
                 },
                 acc: match self.tag()? {

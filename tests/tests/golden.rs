@@ -47,11 +47,18 @@ fn the_bundles_cover_every_op_kind() {
             ops.insert(format!("{:?}", l.weights));
         }
     }
-    let want: std::collections::BTreeSet<String> =
-        ["Dense", "Cp", "Diagonal", "Softmax", "I8", "I16"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
+    let want: std::collections::BTreeSet<String> = [
+        "Dense",
+        "Cp",
+        "Diagonal",
+        "Softmax",
+        "I8",
+        "I8Interleaved",
+        "I16",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
     assert_eq!(ops, want);
 }
 

@@ -149,6 +149,8 @@ fn blob(l: &OneLayer) -> Vec<u8> {
         .flat_map(|&v| match d.weights {
             WeightFormat::I8 => vec![v as i8 as u8],
             WeightFormat::I16 => (v as i16).to_le_bytes().to_vec(),
+            // The interleaved layout is the op contract's and the exporter's.
+            WeightFormat::I8Interleaved => unreachable!("only plain rows are written here"),
         })
         .collect();
     d.weight_section = push(&mut p, &w);

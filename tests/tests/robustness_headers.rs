@@ -513,9 +513,9 @@ fn headers_that_do_not_decode() {
         header[5..14],
         [0x03, 0x00, 0x00, 0x06, 0x08, 0x05, 0x01, 0x00, 0x01]
     );
-    // Unknown node op (0-1 are taken), layer op (0-2), weight format,
-    // accumulator, activation.
-    for (at, v) in [(6, 2u8), (7, 3), (11, 2), (12, 2), (13, 2), (13, 0xff)] {
+    // Unknown node op (0-1 are taken), layer op (0-2), weight format
+    // (0-2), accumulator, activation.
+    for (at, v) in [(6, 2u8), (7, 3), (11, 3), (12, 2), (13, 2), (13, 0xff)] {
         let mut h = header.clone();
         h[at] = v;
         malformed(&h);

@@ -82,6 +82,7 @@ fn describe(model: &Model<'_>, i: u8) -> (String, String, String, u32, u64) {
             let w = match d.weights {
                 WeightFormat::I8 => "i8",
                 WeightFormat::I16 => "i16",
+                WeightFormat::I8Interleaved => "i8x",
             };
             let acc = if d.acc.bytes() == 4 { "i32" } else { "i64" };
             (

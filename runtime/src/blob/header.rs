@@ -108,14 +108,38 @@ pub enum WeightFormat {
     I8,
     /// Signed 16 bit, symmetric (-32767..=32767), per-row scale.
     I16,
+    /// `I8` in the order the Cortex-M4 DSP kernel reads (dense layers
+    /// only): each row padded with zeros to a multiple of 4 bytes, each
+    /// group of 4 weights `w0 w1 w2 w3` stored `w0 w2 w1 w3`, so that
+    /// `SXTB16` of a word gives `(w0, w1)` and `SXTB16 ROR 8` `(w2, w3)`,
+    /// the activations' pair order.
+    I8Interleaved,
 }
 
 impl WeightFormat {
     /// Bytes per weight.
     pub fn bytes(&self) -> usize {
         match self {
-            WeightFormat::I8 => 1,
+            WeightFormat::I8 | WeightFormat::I8Interleaved => 1,
             WeightFormat::I16 => 2,
+        }
+    }
+
+    /// Bytes of a stored row of `len` weights (`I8Interleaved` pads to 4).
+    pub fn row_bytes(&self, len: usize) -> usize {
+        match self {
+            WeightFormat::I8Interleaved => len.checked_next_multiple_of(4).unwrap_or(usize::MAX),
+            WeightFormat::I8 | WeightFormat::I16 => len.saturating_mul(self.bytes()),
+        }
+    }
+
+    /// Where in its row (counted in weights) weight `j` is stored. For
+    /// `I8Interleaved` this swaps the middle two of every group of 4, so
+    /// it is its own inverse: storage slot `s` holds weight `position(s)`.
+    pub fn position(&self, j: usize) -> usize {
+        match self {
+            WeightFormat::I8Interleaved => (j & !3) | ((j & 1) << 1) | ((j >> 1) & 1),
+            WeightFormat::I8 | WeightFormat::I16 => j,
         }
     }
 }

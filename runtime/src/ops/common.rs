@@ -122,10 +122,10 @@ pub(crate) fn check_requant(requant: &[u8], activation: Activation, layer: u8) -
     Ok(())
 }
 
-/// `sum_j |w_j|` of a row of weights.
+/// `sum_j |w_j|` of a row of weights (in any order, padding included).
 pub(crate) fn row_l1(row: &[u8], format: WeightFormat) -> u64 {
     match format {
-        WeightFormat::I8 => row
+        WeightFormat::I8 | WeightFormat::I8Interleaved => row
             .iter()
             .map(|&b| u64::from((b as i8).unsigned_abs()))
             .sum(),

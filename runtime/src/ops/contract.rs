@@ -152,7 +152,7 @@ impl Shape {
     /// The weight range of the format (readers accept the asymmetric end).
     pub(crate) fn weight_range(&self) -> (i64, i64) {
         match self.weights {
-            WeightFormat::I8 => (-128, 127),
+            WeightFormat::I8 | WeightFormat::I8Interleaved => (-128, 127),
             WeightFormat::I16 => (-32768, 32767),
         }
     }
@@ -372,13 +372,25 @@ impl Payload {
     }
 
     pub(crate) fn weights(&mut self, w: &[i32], f: WeightFormat) -> Section {
-        let bytes: Vec<u8> = w
-            .iter()
-            .flat_map(|&v| match f {
-                WeightFormat::I8 => vec![v as i8 as u8],
-                WeightFormat::I16 => (v as i16).to_le_bytes().to_vec(),
-            })
-            .collect();
+        self.rows(w, w.len().max(1), f)
+    }
+
+    /// Rows of `width` weights in `f`'s storage order (and padding).
+    pub(crate) fn rows(&mut self, w: &[i32], width: usize, f: WeightFormat) -> Section {
+        let mut bytes = Vec::new();
+        for row in w.chunks(width) {
+            let mut stored = vec![0u8; f.row_bytes(row.len())];
+            for (j, &v) in row.iter().enumerate() {
+                let s = f.position(j) * f.bytes();
+                match f {
+                    WeightFormat::I8 | WeightFormat::I8Interleaved => stored[s] = v as i8 as u8,
+                    WeightFormat::I16 => {
+                        stored[s..s + 2].copy_from_slice(&(v as i16).to_le_bytes())
+                    }
+                }
+            }
+            bytes.extend(stored);
+        }
         self.push(&bytes)
     }
 }
@@ -741,7 +753,7 @@ pub(crate) fn proof_boundary<C: OpCase>(seed: u64) {
 /// The contract, for op `$case` (an [`OpCase`]): a module of tests named
 /// `$name`.
 macro_rules! op_contract {
-    ($name:ident, $case:ty) => {
+    ($name:ident, $case:ty, $formats:expr) => {
         mod $name {
             use super::*;
             use proptest::prelude::*;
@@ -771,7 +783,7 @@ macro_rules! op_contract {
                 let mut stats = Stats::default();
                 let mut seen = std::collections::BTreeSet::new();
                 let mut widths = std::collections::BTreeSet::new();
-                for seed in 0..800u64 {
+                for seed in 0..2000u64 {
                     let (gating, s) = bit_exact::<$case>(seed, 12, &mut stats);
                     widths.insert(s.in_dim);
                     let g = match gating {
@@ -784,7 +796,8 @@ macro_rules! op_contract {
                     seen.insert((g, s.gated, s.weights as u8, s.acc as u8, s.activation as u8));
                 }
                 std::eprintln!("{}: {stats:?}", stringify!($name));
-                assert_eq!(seen.len(), 80, "{seen:?}");
+                // gatings x gated x weight formats x accumulators x activations
+                assert_eq!(seen.len(), 5 * 2 * $formats * 2 * 2, "{seen:?}");
                 // Every input width (so every tail of any unrolling) 1..=40.
                 assert_eq!(widths.len(), 40, "{widths:?}");
                 assert!(stats.accepted >= 600, "{stats:?}");
@@ -796,6 +809,7 @@ macro_rules! op_contract {
     };
 }
 
-op_contract!(dense, crate::ops::dense::case::Dense);
-op_contract!(cp, crate::ops::cp::case::Cp);
-op_contract!(diagonal, crate::ops::diagonal::case::Diagonal);
+// Dense layers also read `I8Interleaved`.
+op_contract!(dense, crate::ops::dense::case::Dense, 3);
+op_contract!(cp, crate::ops::cp::case::Cp, 2);
+op_contract!(diagonal, crate::ops::diagonal::case::Diagonal, 2);

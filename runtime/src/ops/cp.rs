@@ -179,8 +179,12 @@ impl<'a> CpLayer<'a> {
     /// `z` at least `rank`.
     pub fn middle(&self, gate: &Gate, x: &[i16], z: &mut [i16]) -> Result<()> {
         match (self.desc.weights, self.desc.acc) {
-            (WeightFormat::I8, AccWidth::I32) => self.middle_typed::<1, false>(gate, x, z),
-            (WeightFormat::I8, AccWidth::I64) => self.middle_typed::<1, true>(gate, x, z),
+            (WeightFormat::I8 | WeightFormat::I8Interleaved, AccWidth::I32) => {
+                self.middle_typed::<1, false>(gate, x, z)
+            }
+            (WeightFormat::I8 | WeightFormat::I8Interleaved, AccWidth::I64) => {
+                self.middle_typed::<1, true>(gate, x, z)
+            }
             (WeightFormat::I16, AccWidth::I32) => self.middle_typed::<2, false>(gate, x, z),
             (WeightFormat::I16, AccWidth::I64) => self.middle_typed::<2, true>(gate, x, z),
         }
@@ -217,8 +221,12 @@ impl<'a> CpLayer<'a> {
     /// `rank` elements, `y` at least `out_dim`.
     pub fn output(&self, gate: &Gate, z: &[i16], y: &mut [i16]) -> Result<()> {
         match (self.desc.weights, self.desc.acc) {
-            (WeightFormat::I8, AccWidth::I32) => self.output_typed::<1, false>(gate, z, y),
-            (WeightFormat::I8, AccWidth::I64) => self.output_typed::<1, true>(gate, z, y),
+            (WeightFormat::I8 | WeightFormat::I8Interleaved, AccWidth::I32) => {
+                self.output_typed::<1, false>(gate, z, y)
+            }
+            (WeightFormat::I8 | WeightFormat::I8Interleaved, AccWidth::I64) => {
+                self.output_typed::<1, true>(gate, z, y)
+            }
             (WeightFormat::I16, AccWidth::I32) => self.output_typed::<2, false>(gate, z, y),
             (WeightFormat::I16, AccWidth::I64) => self.output_typed::<2, true>(gate, z, y),
         }
@@ -274,6 +282,9 @@ impl<'a> GatedOp<'a> for CpLayer<'a> {
             mid,
         } = desc.op
         else {
+            return Err(Error::UnsupportedParameter { layer: index });
+        };
+        let (WeightFormat::I8 | WeightFormat::I16) = desc.weights else {
             return Err(Error::UnsupportedParameter { layer: index });
         };
         if rank == 0 {
@@ -773,7 +784,7 @@ pub(crate) mod case {
             let (lo, hi) = shape.weight_range();
             let n_min = match shape.weights {
                 WeightFormat::I16 => 1,
-                WeightFormat::I8 => 511,
+                WeightFormat::I8 | WeightFormat::I8Interleaved => 511,
             };
             let mut rank = rng.range(1, 4) as usize;
             if narrow {

@@ -28,18 +28,55 @@ pub struct DenseLayer<'a> {
     pub index: u8,
 }
 
-/// Element type of a weight row.
+#[cfg(any(test, phasegate_dsp))]
+mod dsp;
+/// The on-target self-test of the DSP kernels (`kernel-check` feature).
+#[cfg(all(feature = "kernel-check", phasegate_dsp))]
+pub use dsp::check::kernel_check;
+
+/// Storage order of a weight row, and the inputs in the same order.
 trait Weight {
+    /// The row's stored weights, in storage order.
     fn row(bytes: &[u8]) -> impl Iterator<Item = i32> + '_;
+    /// The inputs each stored weight meets, in storage order (0 against
+    /// padding).
+    fn xs(x: &[i16]) -> impl Iterator<Item = i32> + '_;
 }
 
+/// `WeightFormat::I8`.
 struct W8;
+/// `WeightFormat::I8Interleaved`.
+struct W8I;
+/// `WeightFormat::I16`.
 struct W16;
+
+#[inline(always)]
+fn plain(x: &[i16]) -> impl Iterator<Item = i32> + '_ {
+    x.iter().map(|&v| i32::from(v))
+}
 
 impl Weight for W8 {
     #[inline(always)]
     fn row(bytes: &[u8]) -> impl Iterator<Item = i32> + '_ {
         bytes.iter().map(|&b| i32::from(b as i8))
+    }
+    #[inline(always)]
+    fn xs(x: &[i16]) -> impl Iterator<Item = i32> + '_ {
+        plain(x)
+    }
+}
+
+impl Weight for W8I {
+    #[inline(always)]
+    fn row(bytes: &[u8]) -> impl Iterator<Item = i32> + '_ {
+        W8::row(bytes)
+    }
+    /// Storage slot `s` holds weight `position(s)` (the order is its own
+    /// inverse); slots past `in_dim` are padding.
+    #[inline(always)]
+    fn xs(x: &[i16]) -> impl Iterator<Item = i32> + '_ {
+        let f = WeightFormat::I8Interleaved;
+        (0..f.row_bytes(x.len())).map(move |s| x.get(f.position(s)).map_or(0, |&v| i32::from(v)))
     }
 }
 
@@ -51,6 +88,10 @@ impl Weight for W16 {
             .0
             .iter()
             .map(|c| i32::from(i16::from_le_bytes(*c)))
+    }
+    #[inline(always)]
+    fn xs(x: &[i16]) -> impl Iterator<Item = i32> + '_ {
+        plain(x)
     }
 }
 
@@ -64,7 +105,9 @@ trait Acc: Copy {
 
 impl Acc for i32 {
     const ZERO: Self = 0;
-    /// Cannot wrap: the loader proved `sum |w| * 2^15 <= i32::MAX` for every row.
+    /// Cannot wrap: the loader proved `sum |w| * 2^15 <= i32::MAX` for
+    /// every row. (Were it to, wrapping addition is exact modulo 2^32 in
+    /// any order, so every kernel would still agree bit for bit.)
     #[inline(always)]
     fn mac(self, product: i32) -> Self {
         self.wrapping_add(product)
@@ -90,8 +133,8 @@ impl Acc for i64 {
 #[inline(always)]
 fn dot1<W: Weight, A: Acc>(r: [&[u8]; 1], x: &[i16]) -> [A; 1] {
     let mut a = A::ZERO;
-    for (w, &v) in W::row(r[0]).zip(x) {
-        a = a.mac(w * i32::from(v));
+    for (w, v) in W::row(r[0]).zip(W::xs(x)) {
+        a = a.mac(w * v);
     }
     [a]
 }
@@ -99,8 +142,7 @@ fn dot1<W: Weight, A: Acc>(r: [&[u8]; 1], x: &[i16]) -> [A; 1] {
 #[inline(always)]
 fn dot2<W: Weight, A: Acc>(r: [&[u8]; 2], x: &[i16]) -> [A; 2] {
     let (mut a0, mut a1) = (A::ZERO, A::ZERO);
-    for ((w0, w1), &v) in W::row(r[0]).zip(W::row(r[1])).zip(x) {
-        let v = i32::from(v);
+    for ((w0, w1), v) in W::row(r[0]).zip(W::row(r[1])).zip(W::xs(x)) {
         a0 = a0.mac(w0 * v);
         a1 = a1.mac(w1 * v);
     }
@@ -114,8 +156,7 @@ fn dot4<W: Weight, A: Acc>(r: [&[u8]; 4], x: &[i16]) -> [A; 4] {
         .zip(W::row(r[1]))
         .zip(W::row(r[2]))
         .zip(W::row(r[3]));
-    for ((((w0, w1), w2), w3), &v) in rows.zip(x) {
-        let v = i32::from(v);
+    for ((((w0, w1), w2), w3), v) in rows.zip(W::xs(x)) {
         a0 = a0.mac(w0 * v);
         a1 = a1.mac(w1 * v);
         a2 = a2.mac(w2 * v);
@@ -124,9 +165,105 @@ fn dot4<W: Weight, A: Acc>(r: [&[u8]; 4], x: &[i16]) -> [A; 4] {
     [a0, a1, a2, a3]
 }
 
+/// The dot products of one pass over `x`: 1, 2 or 4 experts' rows (each
+/// `row_bytes` long) against the same inputs.
+trait Kernel {
+    fn dot1(r: [&[u8]; 1], x: &[i16]) -> [i64; 1];
+    fn dot2(r: [&[u8]; 2], x: &[i16]) -> [i64; 2];
+    fn dot4(r: [&[u8]; 4], x: &[i16]) -> [i64; 4];
+}
+
+/// The portable kernel: the reference, and the kernel of every target
+/// without the DSP extension.
+struct Portable<W, A>(core::marker::PhantomData<(W, A)>);
+
+impl<W: Weight, A: Acc> Kernel for Portable<W, A> {
+    #[inline(always)]
+    fn dot1(r: [&[u8]; 1], x: &[i16]) -> [i64; 1] {
+        dot1::<W, A>(r, x).map(Acc::widen)
+    }
+    #[inline(always)]
+    fn dot2(r: [&[u8]; 2], x: &[i16]) -> [i64; 2] {
+        dot2::<W, A>(r, x).map(Acc::widen)
+    }
+    #[inline(always)]
+    fn dot4(r: [&[u8]; 4], x: &[i16]) -> [i64; 4] {
+        dot4::<W, A>(r, x).map(Acc::widen)
+    }
+}
+
+/// A kernel as function pointers: one copy of the row loop (blend,
+/// requantisation, activation) serves every layout, which keeps the
+/// firmware's `.text` in budget; a call per pass costs nothing measurable.
+#[derive(Clone, Copy)]
+struct Dots {
+    one: Rows<1>,
+    two: Option<Rows<2>>,
+    four: Option<Rows<4>>,
+}
+
+/// An `N`-row kernel.
+type Rows<const N: usize> = fn([&[u8]; N], &[i16]) -> [i64; N];
+
+impl Dots {
+    /// Up to four experts per pass.
+    fn of<K: Kernel>() -> Self {
+        Dots {
+            one: K::dot1,
+            two: Some(K::dot2),
+            four: Some(K::dot4),
+        }
+    }
+
+    /// One expert per pass.
+    fn one<K: Kernel>() -> Self {
+        Dots {
+            one: K::dot1,
+            two: None,
+            four: None,
+        }
+    }
+}
+
+/// The plain int8 layout of blobs written before `I8Interleaved`: the
+/// portable kernel everywhere; on the DSP target without its two-row
+/// variant (two experts take the four-row kernel, two of its rows unused),
+/// which keeps the firmware's `.text` in budget while the cubic gate's
+/// four experts keep their speed (re-exporting such a blob gives it the
+/// DSP kernel).
+struct Legacy8;
+
+impl Legacy8 {
+    #[cfg(phasegate_dsp)]
+    fn dots() -> Dots {
+        type K = Portable<W8, i32>;
+        Dots {
+            one: K::dot1,
+            two: None,
+            four: Some(K::dot4),
+        }
+    }
+
+    #[cfg(not(phasegate_dsp))]
+    fn dots() -> Dots {
+        Dots::of::<Portable<W8, i32>>()
+    }
+}
+
+/// The kernels of the two layouts the DSP kernels read, with 32-bit
+/// accumulators: `SMLAD` loops on Armv7E-M, the portable ones elsewhere.
+#[cfg(phasegate_dsp)]
+type Fast8 = dsp::Smlad<W8I, dsp::Asm>;
+#[cfg(not(phasegate_dsp))]
+type Fast8 = Portable<W8I, i32>;
+#[cfg(phasegate_dsp)]
+type Fast16 = dsp::Smlad<W16, dsp::Asm>;
+#[cfg(not(phasegate_dsp))]
+type Fast16 = Portable<W16, i32>;
+
 impl<'a> DenseLayer<'a> {
     fn row_bytes(&self) -> usize {
-        usize::from(self.desc.in_dim) * self.desc.weights.bytes()
+        self.desc.weights.row_bytes(usize::from(self.desc.in_dim))
     }
 
     /// Weight row `row` of expert `expert`.
@@ -138,13 +275,10 @@ impl<'a> DenseLayer<'a> {
             .ok_or(Error::SectionLength { layer: self.index })
     }
 
-    /// The kernel with up to `PASS` (1, 2 or 4) experts per pass over `x`.
-    fn run_typed<W: Weight, A: Acc, const PASS: usize>(
-        &self,
-        gate: &Gate,
-        x: &[i16],
-        y: &mut [i16],
-    ) -> Result<()> {
+    /// The layer with kernel `k`: up to 4 experts per pass over `x` when it
+    /// has a 4-row kernel, else one.
+    fn run_with(&self, k: Dots, gate: &Gate, x: &[i16], y: &mut [i16]) -> Result<()> {
+        let step = if k.four.is_some() { 4 } else { 1 };
         let out = usize::from(self.desc.out_dim);
         let n_in = usize::from(self.desc.in_dim);
         let x = x.get(..n_in).ok_or(too_short(n_in, x.len()))?;
@@ -158,42 +292,127 @@ impl<'a> DenseLayer<'a> {
             }
         }
         let n = gate.len();
+        // 32-bit accumulators and biases give `|acc + b| <= 2^32`; with
+        // `sum |g| < 2^31` every term and partial sum of the blend stays
+        // below 2^63 in magnitude, so none of its saturations can act and
+        // plain i64 arithmetic gives the same bits, without the M4's costly
+        // overflow checks.
+        let exact = self.desc.acc == AccWidth::I32
+            && coefs.iter().map(|g| g.unsigned_abs()).sum::<u64>() < 1 << 31;
         let bias_width = self.desc.acc.bytes();
+        let bias32 = self.bias.as_chunks::<4>().0;
         let records = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
+        if let (true, 4, Some(four)) = (exact, n, k.four) {
+            let active = |s: usize| {
+                let e = experts.get(s).copied().unwrap_or(0);
+                (e, coefs.get(s).copied().unwrap_or(0))
+            };
+            return self.run_four(four, [0, 1, 2, 3].map(active), x, y);
+        }
         for (i, (yi, rec)) in y.iter_mut().zip(records).enumerate() {
             let mut total = 0i64;
-            // Up to PASS experts per pass over `x`; a softmax gate's eight
+            // Up to `step` experts per pass over `x`; a softmax gate's eight
             // take two passes or more. The blend adds in gate order either way.
-            for first in (0..n).step_by(PASS) {
+            for first in (0..n).step_by(step) {
                 let e = |k: usize| experts.get(first + k).copied().unwrap_or(0);
-                let accs: [i64; 4] = match (n - first).min(PASS) {
+                let accs: [i64; 4] = match (n - first).min(step) {
                     1 => {
-                        let [a] = dot1::<W, A>([self.row(e(0), i)?], x);
-                        [a.widen(), 0, 0, 0]
+                        let [a] = (k.one)([self.row(e(0), i)?], x);
+                        [a, 0, 0, 0]
                     }
-                    2 => {
-                        let [a, b] = dot2::<W, A>([self.row(e(0), i)?, self.row(e(1), i)?], x);
-                        [a.widen(), b.widen(), 0, 0]
-                    }
-                    _ => {
-                        let rows = [
-                            self.row(e(0), i)?,
-                            self.row(e(1), i)?,
-                            self.row(e(2), i)?,
-                            self.row(e(3), i)?,
-                        ];
-                        dot4::<W, A>(rows, x).map(Acc::widen)
-                    }
+                    m => match (m, k.two, k.four) {
+                        (2, Some(two), _) => {
+                            let [a, b] = two([self.row(e(0), i)?, self.row(e(1), i)?], x);
+                            [a, b, 0, 0]
+                        }
+                        (_, _, Some(four)) => {
+                            let rows = [
+                                self.row(e(0), i)?,
+                                self.row(e(1), i)?,
+                                self.row(e(2), i)?,
+                                self.row(e(3), i)?,
+                            ];
+                            four(rows, x)
+                        }
+                        _ => [0; 4],
+                    },
                 };
                 let pass = experts
                     .iter()
                     .zip(&coefs)
                     .skip(first)
-                    .take((n - first).min(PASS));
+                    .take((n - first).min(step));
                 for ((&e, &g), &acc) in pass.zip(&accs) {
-                    let b = bias_at(self.bias, bias_width, usize::from(e) * out + i).unwrap_or(0);
-                    total = total.saturating_add(acc.saturating_add(b).saturating_mul(g));
+                    let at = usize::from(e) * out + i;
+                    total = if exact {
+                        let b = bias32.get(at).map_or(0, |c| i32::from_le_bytes(*c));
+                        total.wrapping_add(acc.wrapping_add(i64::from(b)).wrapping_mul(g))
+                    } else {
+                        let b = bias_at(self.bias, bias_width, at).unwrap_or(0);
+                        total.saturating_add(acc.saturating_add(b).saturating_mul(g))
+                    };
                 }
+            }
+            *yi = finish_row(total, rec, self.desc.activation);
+        }
+        Ok(())
+    }
+}
+
+impl DenseLayer<'_> {
+    /// `run_with` for exactly four experts and an exact blend (the cubic
+    /// phase gate's case): the same arithmetic, with each expert's rows and
+    /// biases walked in step instead of indexed per row.
+    fn run_four(
+        &self,
+        four: Rows<4>,
+        active: [(u16, i64); 4],
+        x: &[i16],
+        y: &mut [i16],
+    ) -> Result<()> {
+        let out = usize::from(self.desc.out_dim);
+        let rb = self.row_bytes().max(1);
+        let bias32 = self.bias.as_chunks::<4>().0;
+        let records = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
+        let too_short = Error::SectionLength { layer: self.index };
+        let expert =
+            |(e, _): (u16, i64)| -> Result<(core::slice::ChunksExact<'_, u8>, &[[u8; 4]])> {
+                let first = usize::from(e) * out;
+                let w = self
+                    .weights
+                    .get(first * rb..(first + out) * rb)
+                    .ok_or(too_short)?;
+                let b = bias32.get(first..first + out).ok_or(too_short)?;
+                Ok((w.chunks_exact(rb), b))
+            };
+        let [(mut w0, b0), (mut w1, b1), (mut w2, b2), (mut w3, b3)] = [
+            expert(active[0])?,
+            expert(active[1])?,
+            expert(active[2])?,
+            expert(active[3])?,
+        ];
+        let g = active.map(|(_, g)| g);
+        let b32 = |b: &[u8; 4]| i64::from(i32::from_le_bytes(*b));
+        let rows = y
+            .iter_mut()
+            .zip(records)
+            .zip(b0.iter().zip(b1).zip(b2.iter().zip(b3)));
+        for ((yi, rec), ((c0, c1), (c2, c3))) in rows {
+            let (Some(r0), Some(r1), Some(r2), Some(r3)) =
+                (w0.next(), w1.next(), w2.next(), w3.next())
+            else {
+                return Err(too_short);
+            };
+            let [a0, a1, a2, a3] = four([r0, r1, r2, r3], x);
+            // Gate order, wrapping: exact here (see `exact` in `run_with`).
+            let mut total = 0i64;
+            for (a, (b, g)) in [
+                (a0, (c0, g[0])),
+                (a1, (c1, g[1])),
+                (a2, (c2, g[2])),
+                (a3, (c3, g[3])),
+            ] {
+                total = total.wrapping_add(a.wrapping_add(b32(b)).wrapping_mul(g));
             }
             *yi = finish_row(total, rec, self.desc.activation);
         }
@@ -207,8 +426,8 @@ impl<'a> GatedOp<'a> for DenseLayer<'a> {
         active * u64::from(desc.in_dim) * u64::from(desc.out_dim)
     }
 
-    /// `weight_section`: `experts x out x in` weights; then biases and
-    /// records.
+    /// `weight_section`: `experts x out` rows of `in` weights (each padded
+    /// to 4 bytes for `I8Interleaved`); then biases and records.
     fn bind(payload: &'a [u8], desc: LayerDesc, index: u8) -> Result<Self> {
         check_dims(&desc, index)?;
         let s = Sections::new(payload, index);
@@ -216,8 +435,7 @@ impl<'a> GatedOp<'a> for DenseLayer<'a> {
             desc.weight_section,
             u64::from(desc.experts)
                 * u64::from(desc.out_dim)
-                * u64::from(desc.in_dim)
-                * desc.weights.bytes() as u64,
+                * desc.weights.row_bytes(usize::from(desc.in_dim)) as u64,
         )?;
         let (bias, requant) = s.rows(&desc)?;
         Ok(DenseLayer {
@@ -269,14 +487,17 @@ impl<'a> GatedOp<'a> for DenseLayer<'a> {
 
     /// One pass over `x` per output row; no scratch.
     fn run(&self, gate: &Gate, x: &[i16], _scratch: &mut [i16], y: &mut [i16]) -> Result<()> {
-        match (self.desc.weights, self.desc.acc) {
+        let k = match (self.desc.weights, self.desc.acc) {
             // 64-bit accumulators (rows too heavy for the 32-bit proof, rare)
             // take one expert per pass: a quarter of the unrolled code.
-            (WeightFormat::I8, AccWidth::I32) => self.run_typed::<W8, i32, 4>(gate, x, y),
-            (WeightFormat::I8, AccWidth::I64) => self.run_typed::<W8, i64, 1>(gate, x, y),
-            (WeightFormat::I16, AccWidth::I32) => self.run_typed::<W16, i32, 4>(gate, x, y),
-            (WeightFormat::I16, AccWidth::I64) => self.run_typed::<W16, i64, 1>(gate, x, y),
-        }
+            (WeightFormat::I8, AccWidth::I32) => Legacy8::dots(),
+            (WeightFormat::I8, AccWidth::I64) => Dots::one::<Portable<W8, i64>>(),
+            (WeightFormat::I8Interleaved, AccWidth::I32) => Dots::of::<Fast8>(),
+            (WeightFormat::I8Interleaved, AccWidth::I64) => Dots::one::<Portable<W8I, i64>>(),
+            (WeightFormat::I16, AccWidth::I32) => Dots::of::<Fast16>(),
+            (WeightFormat::I16, AccWidth::I64) => Dots::one::<Portable<W16, i64>>(),
+        };
+        self.run_with(k, gate, x, y)
     }
 }
 
@@ -330,7 +551,10 @@ pub(crate) mod case {
     impl OpCase for Dense {
         type Op<'a> = DenseLayer<'a>;
 
-        fn random(rng: &mut Rng, shape: Shape, _gating: Gating) -> Self {
+        fn random(rng: &mut Rng, mut shape: Shape, _gating: Gating) -> Self {
+            if shape.weights == WeightFormat::I8 && rng.chance(50) {
+                shape.weights = WeightFormat::I8Interleaved;
+            }
             let mut w = shape.weights(rng, shape.experts * shape.out_dim * shape.in_dim);
             if shape.acc == AccWidth::I32 && rng.chance(90) {
                 fit_i32_rows(&mut w, shape.in_dim);
@@ -348,7 +572,7 @@ pub(crate) mod case {
 
         fn encode(&self, p: &mut Payload) -> LayerDesc {
             let mut d = self.rows.shape.desc(LayerOp::Dense);
-            d.weight_section = p.weights(&self.w, d.weights);
+            d.weight_section = p.rows(&self.w, self.rows.shape.in_dim, d.weights);
             self.rows.encode(p, &mut d);
             d
         }
@@ -396,7 +620,7 @@ pub(crate) mod case {
             let narrow = shape.acc == AccWidth::I32;
             let (n_min, n_hi) = match shape.weights {
                 WeightFormat::I16 => (1, 1),
-                WeightFormat::I8 => (511, 1),
+                WeightFormat::I8 | WeightFormat::I8Interleaved => (511, 1),
             };
             if narrow {
                 shape.in_dim = n_min + n_hi + rng.below(3);

@@ -32,7 +32,9 @@ impl<'a> DiagLayer<'a> {
         let n = usize::from(self.desc.out_dim);
         let at = k * n + i;
         match self.desc.weights {
-            WeightFormat::I8 => self.weights.get(at).map_or(0, |&b| i64::from(b as i8)),
+            WeightFormat::I8 | WeightFormat::I8Interleaved => {
+                self.weights.get(at).map_or(0, |&b| i64::from(b as i8))
+            }
             WeightFormat::I16 => i16_at(self.weights, at).map_or(0, i64::from),
         }
     }
@@ -69,6 +71,9 @@ impl<'a> GatedOp<'a> for DiagLayer<'a> {
     fn bind(payload: &'a [u8], desc: LayerDesc, index: u8) -> Result<Self> {
         if desc.in_dim != desc.out_dim {
             return Err(Error::DimensionMismatch { layer: index });
+        }
+        if desc.weights == WeightFormat::I8Interleaved {
+            return Err(Error::UnsupportedParameter { layer: index });
         }
         check_dims(&desc, index)?;
         let s = Sections::new(payload, index);

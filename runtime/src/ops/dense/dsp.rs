@@ -1,0 +1,149 @@
+//! The Armv7E-M DSP kernels of the two layouts whose rows are words of
+//! activation-ordered pairs: `I16` (two weights per half-word pair, as
+//! stored) and `I8Interleaved` (`SXTB16` and `SXTB16 ROR 8` of a word give
+//! `(w0, w1)` and `(w2, w3)`). One `SMLAD` is two MACs.
+//!
+//! A pass takes one or two experts' rows (two accumulators, two weight
+//! streams and eight inputs in registers fill the thirteen registers the
+//! loop can use; four experts take two passes over `x`). The block loop runs
+//! over whole blocks of [`BLOCK`] inputs when `x` and every row start
+//! word-aligned (`LDM`/`LDRD` fault otherwise); the rest of the row, or the
+//! whole row when something is misaligned, goes through the portable
+//! kernel. The 32-bit sums are exact modulo 2^32 whatever the order, so the
+//! result is the portable kernel's bit for bit (`emulation.rs` proves the
+//! algorithm on the host, `firmware/src/bin/kernel-check.rs` the assembly
+//! under QEMU).
+
+use super::{Kernel, Weight, W16, W8I};
+use core::marker::PhantomData;
+
+#[cfg(phasegate_dsp)]
+mod asm;
+#[cfg(phasegate_dsp)]
+pub(super) use asm::Asm;
+#[cfg(all(feature = "kernel-check", phasegate_dsp))]
+pub(super) mod check;
+#[cfg(test)]
+mod emulation;
+
+/// Inputs per iteration of every block loop (two `LDM`s of eight).
+pub(super) const BLOCK: usize = 16;
+
+/// A layout the block loops read.
+pub(super) trait Packed: Weight {
+    /// Bytes of the weights of one input.
+    const BYTES: usize;
+
+    /// The 32-bit (wrapping) dot product of a row that starts at a group
+    /// boundary with `x`: a plain loop, small rather than fast (it covers
+    /// fewer than [`BLOCK`] inputs, or rows that are not word-aligned).
+    fn tail(row: &[u8], x: &[i16]) -> i32;
+}
+
+impl Packed for W8I {
+    const BYTES: usize = 1;
+
+    /// Group by group: stored `w0 w2 w1 w3` meet `x0 x2 x1 x3`; in the
+    /// last, partial group input `s` meets slot `position(s)` (padding
+    /// meets nothing).
+    #[inline(never)]
+    fn tail(row: &[u8], x: &[i16]) -> i32 {
+        let w8 = |b: u8| i32::from(b as i8);
+        let (groups, _) = row.as_chunks::<4>();
+        let (xs, rest) = x.as_chunks::<4>();
+        let mut acc = 0i32;
+        for (w, v) in groups.iter().zip(xs) {
+            let [x0, x1, x2, x3] = v.map(i32::from);
+            let t = w8(w[0]) * x0 + w8(w[1]) * x2 + w8(w[2]) * x1 + w8(w[3]) * x3;
+            acc = acc.wrapping_add(t);
+        }
+        if let Some(w) = groups.get(xs.len()) {
+            // Inputs 0, 1, 2 of a partial group sit in slots 0, 2, 1.
+            let r = |s: usize| rest.get(s).map_or(0, |&v| i32::from(v));
+            acc = acc.wrapping_add(w8(w[0]) * r(0) + w8(w[2]) * r(1) + w8(w[1]) * r(2));
+        }
+        acc
+    }
+}
+
+impl Packed for W16 {
+    const BYTES: usize = 2;
+
+    #[inline(never)]
+    fn tail(row: &[u8], x: &[i16]) -> i32 {
+        let mut acc = 0i32;
+        for (w, &v) in row.as_chunks::<2>().0.iter().zip(x) {
+            acc = acc.wrapping_add(i32::from(i16::from_le_bytes(*w)) * i32::from(v));
+        }
+        acc
+    }
+}
+
+/// A block loop over `N` (1 or 2) rows of layout `W`.
+pub(super) trait Blocks<W, const N: usize> {
+    /// The rows' 32-bit (wrapping) dot products with `x`.
+    ///
+    /// # Safety
+    ///
+    /// `x.len()` is a non-zero multiple of [`BLOCK`], every row is
+    /// `x.len() * W::BYTES` long, and `x` and every row start word-aligned.
+    unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [i32; N];
+}
+
+fn word_aligned<T>(s: &[T]) -> bool {
+    (s.as_ptr() as usize).is_multiple_of(4)
+}
+
+/// `rows`' dot products with `x`: the block loop `L` over the whole blocks,
+/// [`Packed::tail`] over the rest. Not inlined: one copy per layout and row
+/// count keeps the firmware's `.text` in budget.
+#[inline(never)]
+fn pass<W: Packed, L: Blocks<W, N>, const N: usize>(rows: [&[u8]; N], x: &[i16]) -> [i32; N] {
+    let n = x.len() / BLOCK * BLOCK;
+    let mut heads: [&[u8]; N] = [&[]; N];
+    let mut fits = n > 0 && word_aligned(x);
+    for (head, row) in heads.iter_mut().zip(rows) {
+        match row.get(..n * W::BYTES) {
+            Some(h) if word_aligned(h) => *head = h,
+            _ => fits = false,
+        }
+    }
+    let (mut acc, done) = match x.get(..n) {
+        // SAFETY: `head` is `n` inputs, a non-zero multiple of BLOCK, each
+        // row head is `n * W::BYTES` bytes, and all start word-aligned.
+        Some(head) if fits => (unsafe { L::run(heads, head) }, n),
+        _ => ([0; N], 0),
+    };
+    if done < x.len() {
+        let rest = x.get(done..).unwrap_or(&[]);
+        for (a, row) in acc.iter_mut().zip(rows) {
+            *a = a.wrapping_add(W::tail(row.get(done * W::BYTES..).unwrap_or(&[]), rest));
+        }
+    }
+    acc
+}
+
+/// The kernel of layout `W` with block loop `L` ([`Asm`] on the target).
+pub(super) struct Smlad<W, L>(PhantomData<(W, L)>);
+
+impl<W: Packed, L: Blocks<W, 1> + Blocks<W, 2>> Kernel for Smlad<W, L> {
+    fn dot1(r: [&[u8]; 1], x: &[i16]) -> [i64; 1] {
+        pass::<W, L, 1>(r, x).map(i64::from)
+    }
+
+    fn dot2(r: [&[u8]; 2], x: &[i16]) -> [i64; 2] {
+        pass::<W, L, 2>(r, x).map(i64::from)
+    }
+
+    fn dot4(r: [&[u8]; 4], x: &[i16]) -> [i64; 4] {
+        quad::<W, L>(r, x)
+    }
+}
+
+/// Four rows: two passes of two, in one call.
+#[inline(never)]
+fn quad<W: Packed, L: Blocks<W, 2>>(r: [&[u8]; 4], x: &[i16]) -> [i64; 4] {
+    let [a, b] = pass::<W, L, 2>([r[0], r[1]], x);
+    let [c, d] = pass::<W, L, 2>([r[2], r[3]], x);
+    [a, b, c, d].map(i64::from)
+}

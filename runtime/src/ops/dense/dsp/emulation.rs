@@ -1,0 +1,299 @@
+//! The block loops of `asm.rs`, instruction by instruction, with the
+//! instructions' semantics from the Armv7-M Architecture Reference Manual
+//! (A7.7.134 `SXTB16`, A7.7.115 `SMLAD`, `LDM`/`LDRD` as little-endian word
+//! loads), so that the kernel's algorithm (layout, pairing, block and tail
+//! split, alignment fallback) is checked on the host against the portable
+//! reference. The assembly itself is checked on the target by
+//! `firmware/src/bin/kernel-check.rs` under QEMU.
+
+use super::{Blocks, Kernel, Smlad, BLOCK, W16, W8I};
+use crate::blob::WeightFormat;
+use crate::ops::dense::Portable;
+use proptest::prelude::*;
+
+/// `SXTB16 Rd, Rm, ROR #rot`: bytes 0 and 2 of `Rm` rotated right by
+/// `rot`, each sign-extended to a half-word.
+fn sxtb16(rm: u32, rot: u32) -> u32 {
+    let r = rm.rotate_right(rot);
+    let half = |b: u32| u32::from(b as u8 as i8 as i16 as u16);
+    half(r) | (half(r >> 16) << 16)
+}
+
+/// `SMLAD Rd, Rn, Rm, Ra`: `Ra + Rn.lo * Rm.lo + Rn.hi * Rm.hi`, computed
+/// exactly and kept modulo 2^32 (the Q flag, which the kernel ignores,
+/// records a wrap).
+fn smlad(rn: u32, rm: u32, ra: i32) -> i32 {
+    let lo = i64::from(rn as i16) * i64::from(rm as i16);
+    let hi = i64::from((rn >> 16) as i16) * i64::from((rm >> 16) as i16);
+    (i64::from(ra) + lo + hi) as i32
+}
+
+/// `LDM r10!, {r2-r5}`: eight inputs as four words, advancing `at`.
+fn ldm4(x: &[i16], at: &mut usize) -> [u32; 4] {
+    let mut r = [0u32; 4];
+    for (k, w) in r.iter_mut().enumerate() {
+        let lo = u32::from(x[*at + 2 * k] as u16);
+        let hi = u32::from(x[*at + 2 * k + 1] as u16);
+        *w = lo | (hi << 16);
+    }
+    *at += 8;
+    r
+}
+
+/// `LDRD r12, lr, [p], #8`: two little-endian words, advancing `at`.
+fn ldrd(row: &[u8], at: &mut usize) -> (u32, u32) {
+    let word = |i: usize| u32::from_le_bytes(row[i..i + 4].try_into().unwrap());
+    let r = (word(*at), word(*at + 4));
+    *at += 8;
+    r
+}
+
+/// `i8_step!`.
+fn i8_step(acc: &mut i32, row: &[u8], at: &mut usize, x: [u32; 4]) {
+    let (r12, lr) = ldrd(row, at);
+    let t = sxtb16(r12, 0);
+    *acc = smlad(t, x[0], *acc);
+    let r12 = sxtb16(r12, 8);
+    *acc = smlad(r12, x[1], *acc);
+    let t = sxtb16(lr, 0);
+    *acc = smlad(t, x[2], *acc);
+    let lr = sxtb16(lr, 8);
+    *acc = smlad(lr, x[3], *acc);
+}
+
+/// `i16_step!`.
+fn i16_step(acc: &mut i32, row: &[u8], at: &mut usize, x: [u32; 4]) {
+    let (r12, lr) = ldrd(row, at);
+    *acc = smlad(r12, x[0], *acc);
+    *acc = smlad(lr, x[1], *acc);
+    let (r12, lr) = ldrd(row, at);
+    *acc = smlad(r12, x[2], *acc);
+    *acc = smlad(lr, x[3], *acc);
+}
+
+/// The block loops, run on the emulated instructions.
+struct Emulated;
+
+/// The loops of `asm.rs`: a block is, twice, eight inputs then each row's
+/// step. One row: one block per iteration, the count decremented to zero.
+/// Two rows: the count halved (`lsrs`), a lone block when it was odd, then
+/// two blocks per iteration unless the halved count is zero (`beq`).
+fn blocks<const N: usize>(
+    rows: [&[u8]; N],
+    x: &[i16],
+    step: fn(&mut i32, &[u8], &mut usize, [u32; 4]),
+) -> [i32; N] {
+    assert!(
+        !x.is_empty() && x.len().is_multiple_of(BLOCK),
+        "contract: whole blocks"
+    );
+    let mut acc = [0i32; N];
+    let (mut xp, mut wp) = (0usize, [0usize; N]);
+    let mut block = |acc: &mut [i32; N]| {
+        for _ in 0..2 {
+            let regs = ldm4(x, &mut xp);
+            for ((a, row), p) in acc.iter_mut().zip(rows).zip(&mut wp) {
+                step(a, row, p, regs);
+            }
+        }
+    };
+    let mut count = x.len() / BLOCK;
+    if N == 2 {
+        let odd = count & 1 == 1;
+        count >>= 1;
+        if odd {
+            block(&mut acc);
+        }
+        while count != 0 {
+            block(&mut acc);
+            block(&mut acc);
+            count -= 1;
+        }
+    } else {
+        loop {
+            block(&mut acc);
+            count -= 1;
+            if count == 0 {
+                break;
+            }
+        }
+    }
+    for (row, p) in rows.iter().zip(wp) {
+        assert_eq!(row.len(), p, "contract: the loop reads each row to its end");
+    }
+    acc
+}
+
+impl<const N: usize> Blocks<W8I, N> for Emulated {
+    unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [i32; N] {
+        blocks(rows, x, i8_step)
+    }
+}
+
+impl<const N: usize> Blocks<W16, N> for Emulated {
+    unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [i32; N] {
+        blocks(rows, x, i16_step)
+    }
+}
+
+#[test]
+fn instruction_semantics() {
+    // Bytes 01 7F FF 80: (b0, b2) = (1, -1), (b1, b3) = (127, -128).
+    assert_eq!(sxtb16(0x80FF_7F01, 0), 0xFFFF_0001);
+    assert_eq!(sxtb16(0x80FF_7F01, 8), 0xFF80_007F);
+    // (-32768)^2 twice overflows i32: kept modulo 2^32, like the hardware.
+    assert_eq!(smlad(0x8000_8000, 0x8000_8000, 0), i32::MIN);
+    assert_eq!(smlad(0x0002_FFFF, 0x0003_0005, 10), 10 - 5 + 6);
+}
+
+/// `len` bytes starting `misalign` bytes past a word boundary.
+fn placed(bytes: &[u8], misalign: usize) -> (Vec<u32>, usize) {
+    let mut buf = vec![0u32; (bytes.len() + misalign).div_ceil(4) + 1];
+    let dst: &mut [u8] = as_bytes_mut(&mut buf);
+    dst[misalign..misalign + bytes.len()].copy_from_slice(bytes);
+    (buf, misalign)
+}
+
+/// The bytes of a word buffer (word-aligned at index 0).
+fn as_bytes_mut(buf: &mut [u32]) -> &mut [u8] {
+    // SAFETY: u8 has no alignment or validity requirements and the length
+    // covers exactly the words' bytes.
+    unsafe { core::slice::from_raw_parts_mut(buf.as_mut_ptr().cast(), buf.len() * 4) }
+}
+
+fn as_bytes(buf: &[u32]) -> &[u8] {
+    // SAFETY: as in `as_bytes_mut`, shared.
+    unsafe { core::slice::from_raw_parts(buf.as_ptr().cast(), buf.len() * 4) }
+}
+
+/// One random case: `experts` rows of `in_dim` weights in `format`, inputs,
+/// and where each buffer starts relative to a word boundary.
+#[derive(Debug, Clone)]
+struct Case {
+    format: WeightFormat,
+    w: Vec<Vec<i32>>,
+    x: Vec<i16>,
+    row_misalign: Vec<usize>,
+    x_misalign: usize,
+}
+
+fn case() -> impl Strategy<Value = Case> {
+    (
+        prop_oneof![Just(WeightFormat::I8Interleaved), Just(WeightFormat::I16)],
+        prop_oneof![Just(1usize), Just(2), Just(4)],
+        1usize..=70,
+        any::<u64>(),
+        prop_oneof![4 => Just(0usize), 1 => 1usize..4],
+        prop_oneof![4 => Just(0usize), 1 => Just(1)],
+    )
+        .prop_map(|(format, experts, in_dim, seed, rmis, xmis)| {
+            let mut s = seed | 1;
+            let mut next = move || {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                s
+            };
+            let (lo, span) = match format {
+                WeightFormat::I16 => (-32768i64, 65536u64),
+                _ => (-128, 256),
+            };
+            let mut edgy = |span: u64, lo: i64| match next() % 8 {
+                0 => lo,
+                1 => lo + span as i64 - 1,
+                _ => lo + (next() % span) as i64,
+            };
+            let w = (0..experts)
+                .map(|_| (0..in_dim).map(|_| edgy(span, lo) as i32).collect())
+                .collect();
+            let x = (0..in_dim).map(|_| edgy(65536, -32768) as i16).collect();
+            let row_misalign = (0..experts)
+                .map(|k| if k == 0 { rmis } else { 0 })
+                .collect();
+            Case {
+                format,
+                w,
+                x,
+                row_misalign,
+                x_misalign: xmis,
+            }
+        })
+}
+
+/// A row in `format`'s storage.
+fn encode(row: &[i32], format: WeightFormat) -> Vec<u8> {
+    let mut out = vec![0u8; format.row_bytes(row.len())];
+    for (j, &v) in row.iter().enumerate() {
+        let s = format.position(j);
+        match format {
+            WeightFormat::I16 => out[2 * s..2 * s + 2].copy_from_slice(&(v as i16).to_le_bytes()),
+            _ => out[s] = v as i8 as u8,
+        }
+    }
+    out
+}
+
+/// The kernels' dot products for `c`: (Smlad over Emulated, Portable, exact
+/// sum modulo 2^32).
+fn run(c: &Case) -> (Vec<i64>, Vec<i64>, Vec<i64>) {
+    let stored: Vec<_> =
+        c.w.iter()
+            .zip(&c.row_misalign)
+            .map(|(r, &m)| placed(&encode(r, c.format), m))
+            .collect();
+    let rows: Vec<&[u8]> = stored
+        .iter()
+        .zip(&c.w)
+        .map(|((buf, m), r)| &as_bytes(buf)[*m..*m + c.format.row_bytes(r.len())])
+        .collect();
+    let mut xbuf = vec![0i16; c.x.len() + 2];
+    let off = xbuf.as_ptr() as usize % 4 / 2;
+    let start = (off + c.x_misalign) % 2;
+    xbuf[start..start + c.x.len()].copy_from_slice(&c.x);
+    let x = &xbuf[start..start + c.x.len()];
+    let exact =
+        c.w.iter()
+            .map(|r| {
+                let s: i64 = r
+                    .iter()
+                    .zip(&c.x)
+                    .map(|(&w, &v)| i64::from(w) * i64::from(v))
+                    .sum();
+                i64::from(s as i32)
+            })
+            .collect();
+    fn both<K: Kernel>(rows: &[&[u8]], x: &[i16]) -> Vec<i64> {
+        match rows.len() {
+            1 => K::dot1([rows[0]], x).to_vec(),
+            2 => K::dot2([rows[0], rows[1]], x).to_vec(),
+            _ => K::dot4([rows[0], rows[1], rows[2], rows[3]], x).to_vec(),
+        }
+    }
+    match c.format {
+        WeightFormat::I16 => (
+            both::<Smlad<W16, Emulated>>(&rows, x),
+            both::<Portable<W16, i32>>(&rows, x),
+            exact,
+        ),
+        _ => (
+            both::<Smlad<W8I, Emulated>>(&rows, x),
+            both::<Portable<W8I, i32>>(&rows, x),
+            exact,
+        ),
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(2000))]
+
+    /// The DSP algorithm equals the portable kernel bit for bit (and both
+    /// the exact sum modulo 2^32), for every tail length of the block
+    /// (in_dim 1..=70), 1, 2 and 4 experts, full-range weights and inputs,
+    /// aligned rows (the block loop) and misaligned ones (the fallback).
+    #[test]
+    fn smlad_equals_portable(c in case()) {
+        let (fast, portable, exact) = run(&c);
+        prop_assert_eq!(&fast, &portable);
+        prop_assert_eq!(&portable, &exact);
+    }
+}
