@@ -6,7 +6,7 @@
 
 use std::process::Command;
 
-use host_sim::target::build::{cargo_build, firmware_dir, TARGET};
+use host_sim::target::build::{cargo_build_bin, firmware_dir, TARGET};
 use host_sim::target::qemu::{qemu_available, qemu_binary};
 
 #[test]
@@ -16,13 +16,15 @@ fn dsp_kernels_equal_the_portable_ones_under_qemu() {
         return;
     }
     let target_dir = firmware_dir().join("target").join("kernel-check");
-    let build = cargo_build(&["kernel-check"], Some(&target_dir)).expect("cargo runs");
+    let build =
+        cargo_build_bin("kernel-check", &["kernel-check"], Some(&target_dir)).expect("cargo runs");
     assert!(
         build.success,
         "kernel-check build failed:\n{}",
         build.stderr
     );
     let elf = target_dir.join(TARGET).join("release").join("kernel-check");
+    assert!(elf.is_file(), "no kernel-check ELF at {}", elf.display());
     let status = Command::new(qemu_binary())
         .args(["-machine", "mps2-an386", "-cpu", "cortex-m4"])
         .args(["-display", "none", "-monitor", "none", "-serial", "none"])
