@@ -32,6 +32,8 @@
 )]
 
 mod measure;
+mod region;
+use region::region;
 #[cfg(feature = "controller")]
 mod status_pin;
 // The wire format, shared with host-sim.
@@ -169,22 +171,6 @@ extern "C" {
     static _phasegate_styles_end: u8;
     static _phasegate_hostio_start: u8;
     static _phasegate_hostio_end: u8;
-}
-
-/// A linker-defined region as a byte slice.
-///
-/// # Safety
-/// `[start, end)` must be memory that nothing writes while the slice lives.
-unsafe fn region(start: *const u8, end: *const u8) -> &'static [u8] {
-    let (s, e) = (start as usize, end as usize);
-    // SAFETY: caller's contract; the regions are reserved in memory.x and the
-    // firmware never writes them (the QEMU loader fills them before reset).
-    unsafe {
-        core::slice::from_raw_parts(
-            core::ptr::with_exposed_provenance::<u8>(s),
-            e.saturating_sub(s),
-        )
-    }
 }
 
 fn exit(code: i32) -> ! {

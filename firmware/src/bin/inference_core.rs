@@ -22,6 +22,9 @@
 #[allow(dead_code)]
 #[path = "../measure.rs"]
 mod measure;
+#[path = "../region.rs"]
+mod region;
+use region::region;
 
 use phasegate_wire as wire;
 
@@ -66,22 +69,6 @@ extern "C" {
     static _phasegate_model_end: u8;
     static _phasegate_hostio_start: u8;
     static _phasegate_hostio_end: u8;
-}
-
-/// A linker-defined region as a byte slice.
-///
-/// # Safety
-/// `[start, end)` must be memory that nothing writes while the slice lives.
-unsafe fn region(start: *const u8, end: *const u8) -> &'static [u8] {
-    let (s, e) = (start as usize, end as usize);
-    // SAFETY: caller's contract (regions reserved in memory.x, filled by
-    // the loader, never written by the firmware).
-    unsafe {
-        core::slice::from_raw_parts(
-            core::ptr::with_exposed_provenance::<u8>(s),
-            e.saturating_sub(s),
-        )
-    }
 }
 
 fn exit(code: i32) -> ! {
