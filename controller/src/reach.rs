@@ -124,7 +124,6 @@ pub struct Reach<R, const W: usize> {
     layout: ReachLayout,
     mode: CostMode,
     x: [R; W],
-    y: [R; W],
     out: [R; W],
     targets: [R; W],
 }
@@ -238,7 +237,6 @@ impl<R: Real, const W: usize> Reach<R, W> {
             layout,
             mode,
             x,
-            y: [R::ZERO; W],
             out: [R::ZERO; W],
             targets: x,
         })
@@ -343,27 +341,27 @@ impl<R: Real, const W: usize> Reach<R, W> {
         if let Some(i) = out.iter().position(|v| !v.is_finite()) {
             return Err(Error::NonFinite { index: i as u32 });
         }
-        self.y = self.x;
+        // The network has read `x`: the next frame is built in place (the
+        // blocks it does not compute carry over).
         for (from, to) in &self.layout.blocks {
-            if let (Some(src), Some(dst)) = (self.out.get(from.clone()), self.y.get_mut(to.clone()))
+            if let (Some(src), Some(dst)) = (self.out.get(from.clone()), self.x.get_mut(to.clone()))
             {
                 dst.copy_from_slice(src);
             }
         }
         let t = self.layout.target.clone();
-        if let (Some(src), Some(dst)) = (self.targets.get(t.clone()), self.y.get_mut(t)) {
+        if let (Some(src), Some(dst)) = (self.targets.get(t.clone()), self.x.get_mut(t)) {
             dst.copy_from_slice(src);
         }
         if self.mode == CostMode::Grounded {
             let mut costs = [R::ZERO; 6 * MAX_KEY];
             let k6 = 6 * self.layout.key();
-            let (y, c) = (self.y.as_slice(), costs.get_mut(..k6).unwrap_or(&mut []));
-            grounded_costs(&self.layout, y, c);
-            if let Some(dst) = self.y.get_mut(self.layout.cost.clone()) {
+            let c = costs.get_mut(..k6).unwrap_or(&mut []);
+            grounded_costs(&self.layout, &self.x, c);
+            if let Some(dst) = self.x.get_mut(self.layout.cost.clone()) {
                 dst.copy_from_slice(costs.get(..k6).unwrap_or(&[]));
             }
         }
-        self.x = self.y;
         Ok(self.pose())
     }
 }
