@@ -367,9 +367,11 @@ fn main() -> ! {
                 exit(wire::exit::FRAME_ERROR);
             }
         };
+        measure::phasegate_trace_mark();
         let t1 = measure::now();
         let result = infer(rt, phase, inputs_q, timer).map(|q| outputs_q.copy_from_slice(q));
         let t2 = measure::now();
+        measure::phasegate_trace_mark();
         if let Err(e) = result.and_then(|()| rt.dequantise_output(outputs_q, outputs)) {
             error!("frame {=usize}: {} ({})", i, e, Display2Format(&e));
             exit(wire::exit::FRAME_ERROR);

@@ -166,6 +166,11 @@ enum Command {
         /// `base*2,0*2` with one --style; cycle with two or more.
         #[arg(long, value_name = "SPEC")]
         mix: Option<host_sim::target::MixSpec>,
+        /// Also estimate Cortex-M4 cycles per frame: the run is traced
+        /// (slower) and each executed instruction priced with the Cortex-M4
+        /// TRM's cycle counts (docs/performance.md).
+        #[arg(long, conflicts_with = "controller")]
+        cycles: bool,
         /// Run the locomotion controller on the firmware instead of raw
         /// network frames: a rollout script (idle, walk, circle-left, zigzag,
         /// jog-stop-jog, crouch-walk, or a JSON file) gives each frame's
@@ -383,6 +388,7 @@ fn run(cli: Cli) -> Result<()> {
             phases,
             styles,
             mix,
+            cycles,
             controller,
             budget_instructions,
             overrun_policy,
@@ -418,6 +424,7 @@ fn run(cli: Cli) -> Result<()> {
                 phases,
                 styles,
                 mix,
+                cycles,
             })?;
             Ok(())
         }

@@ -23,12 +23,13 @@
 //! By concern: [`build`] (cargo), [`elf`] (symbols, sections), [`frames`]
 //! (inputs, golden vectors), [`layers`] (per-stage figures), [`styles`] (style images, mix schedules),
 //! [`qemu`] and [`run`] (booting, outputs, the host's side), [`log`]
-//! (defmt), [`report`] (figures and budgets), [`snapshot`] (log
+//! (defmt), [`report`] (figures and budgets), [`cycles`] (cycle estimates), [`snapshot`] (log
 //! snapshots), [`controller`] (controller mode), [`synthetic`] (test
 //! models).
 
 pub mod build;
 pub mod controller;
+pub mod cycles;
 pub mod elf;
 pub mod frames;
 pub mod layers;
@@ -80,6 +81,8 @@ pub struct TargetArgs {
     /// Per-frame mix schedule (default: [`MixSpec::default_for`] the number
     /// of styles).
     pub mix: Option<MixSpec>,
+    /// Also estimate Cortex-M4 cycles from an execution trace ([`cycles`]).
+    pub cycles: bool,
 }
 
 pub(crate) use report::{check_calibration, memory_lines, memory_use};

@@ -63,6 +63,16 @@ fn qemu_escape(p: &Path) -> String {
 
 /// Boots `elf` with `loads`, waits at most `timeout`.
 pub fn run(elf: &Path, loads: &[Load], timeout: Duration) -> Result<QemuRun> {
+    run_with(elf, loads, timeout, &[])
+}
+
+/// [`run`] with `extra` QEMU options (an execution trace, [`super::cycles`]).
+pub fn run_with(
+    elf: &Path,
+    loads: &[Load],
+    timeout: Duration,
+    extra: &[std::ffi::OsString],
+) -> Result<QemuRun> {
     let dir = tempfile::Builder::new()
         .prefix("phasegate-qemu-")
         .tempdir()
@@ -84,7 +94,8 @@ pub fn run(elf: &Path, loads: &[Load], timeout: Duration) -> Result<QemuRun> {
         .args(["-icount", "shift=0"])
         .args(["-semihosting-config", "enable=on,target=native"])
         .arg("-kernel")
-        .arg(elf);
+        .arg(elf)
+        .args(extra);
     for l in loads {
         let file = std::path::absolute(&l.file).unwrap_or_else(|_| l.file.clone());
         cmd.arg("-device").arg(format!(

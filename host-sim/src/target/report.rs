@@ -208,6 +208,8 @@ pub struct TargetReport {
     pub log: Vec<String>,
     /// QEMU's wall time.
     pub wall: Duration,
+    /// Cortex-M4 cycle estimate from an execution trace (`--cycles`).
+    pub cycles: Option<super::cycles::CycleReport>,
 }
 
 impl TargetReport {
@@ -400,6 +402,9 @@ impl TargetReport {
         }
         if !self.stages.is_empty() {
             s += &super::layers::render(&self.stages, self.frames);
+        }
+        if let Some(c) = &self.cycles {
+            s += &c.render(u64::from(self.macs_per_frame));
         }
         s += &memory_lines("", self.calibration, &self.flash, &self.ram);
         let budget = match self.check_budgets() {

@@ -90,6 +90,19 @@ pub fn boot(
     image: Option<&[u8]>,
     timeout: Duration,
 ) -> Result<Booted> {
+    boot_with(elf, elf_path, blob, styles, image, timeout, &[])
+}
+
+/// [`boot`] with `extra` QEMU options.
+pub fn boot_with(
+    elf: &ElfInfo,
+    elf_path: &Path,
+    blob: Option<&Path>,
+    styles: Option<&[u8]>,
+    image: Option<&[u8]>,
+    timeout: Duration,
+    extra: &[std::ffi::OsString],
+) -> Result<Booted> {
     let scratch = tempfile::Builder::new()
         .prefix("phasegate-io-")
         .tempdir()
@@ -145,7 +158,7 @@ pub fn boot(
             addr: start,
         });
     }
-    let run = qemu::run(elf_path, &loads, timeout)?;
+    let run = qemu::run_with(elf_path, &loads, timeout, extra)?;
     let log = log::decode(&elf.bytes, &run.stdout)?;
     Ok(Booted { run, log })
 }
@@ -326,13 +339,23 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         .collect();
     let max_macs = frame_macs.iter().copied().max().unwrap_or(u64::from(macs));
     eprintln!("running {} frames under QEMU ...", frames.len());
-    let booted = boot(
+    let trace_dir = tempfile::Builder::new()
+        .prefix("phasegate-trace-")
+        .tempdir()
+        .context("cannot create a temporary directory")?;
+    let trace = trace_dir.path().join("trace.log");
+    let booted = boot_with(
         &elf,
         &elf_path,
         Some(&args.model),
         (!style_files.is_empty()).then_some(&styles_image[..]),
         Some(&image),
         time_limit(frames.len(), u32::try_from(max_macs).unwrap_or(u32::MAX)),
+        &if args.cycles {
+            cycles::qemu_trace_args(&trace)
+        } else {
+            Vec::new()
+        },
     )?;
     let file = booted.output_file()?;
     let out = parse_outputs(file, frames.len(), output_dim, input_crc)?;
@@ -347,6 +370,21 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
             layers::profile(&model, file, frames.len(), input_crc)?
         }
         None => Vec::new(),
+    };
+
+    let cycles = if args.cycles {
+        let file = std::fs::File::open(&trace)
+            .with_context(|| format!("QEMU wrote no trace at {}", trace.display()))?;
+        let priced = cycles::price_trace(std::io::BufReader::new(file))?;
+        ensure!(
+            priced.len() == frames.len(),
+            "the trace brackets {} frames, the run had {}",
+            priced.len(),
+            frames.len()
+        );
+        cycles::CycleReport::of(priced)
+    } else {
+        None
     };
 
     let mut mismatches = 0;
@@ -404,5 +442,6 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         ram,
         log: booted.log,
         wall: booted.run.wall,
+        cycles,
     })
 }

@@ -356,6 +356,7 @@ fn budgets_bite() {
         },
         log: vec![],
         wall: Duration::ZERO,
+        cycles: None,
     };
     assert!(r.check_budgets().is_ok());
     r.ram.stack_high_water += 4;
@@ -1481,6 +1482,7 @@ fn cost_estimate_tracks_qemu() {
             phases: None,
             styles: vec![],
             mix: None,
+            cycles: false,
         })
         .unwrap();
         let bytes = std::fs::read(&blob).unwrap();
@@ -1494,5 +1496,53 @@ fn cost_estimate_tracks_qemu() {
             estimate.abs_diff(measured) * 100 <= exporter::cost::TOLERANCE_PERCENT * measured,
             "{case}: estimated {estimate}, measured {measured}"
         );
+    }
+}
+
+/// `--cycles` traces the run and prices each frame's inference: the
+/// trace's instruction count is the firmware's own measurement (SysTick,
+/// 40-instruction ticks) plus the marker calls and the two `now()` readings
+/// inside the brackets, and the cycle range is ordered.
+#[test]
+fn cycle_trace_counts_what_the_firmware_measures() {
+    let name = "cycle_trace_counts_what_the_firmware_measures";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    if golden_or_skip(name).is_none() {
+        return;
+    }
+    for case in ["default", "cp-diagonal"] {
+        let report = execute(&TargetArgs {
+            model: frames::golden_root().join(case).join("model.blob"),
+            frames: Some(3),
+            cycles: true,
+            ..TargetArgs::default()
+        })
+        .unwrap();
+        assert!(report.bit_exact(), "{case}: a traced run stays bit-exact");
+        let c = report.cycles.expect("--cycles gives a cycle report");
+        assert_eq!(c.frames, 3);
+        let traced = c.median.instructions;
+        let measured = report.infer_instructions.median;
+        assert!(
+            traced.abs_diff(measured) <= 2 * INSTRUCTIONS_PER_TICK + 64,
+            "{case}: trace {traced} vs firmware {measured} instructions"
+        );
+        let [lo, typ, hi] = c.median.cycles;
+        assert!(
+            lo <= typ && typ <= hi && lo >= traced,
+            "{case}: {lo} {typ} {hi}"
+        );
+        assert_eq!(
+            c.median.mix.values().map(|m| m.instructions).sum::<u64>(),
+            traced
+        );
+        assert!(
+            !c.median.mix.contains_key(&super::cycles::Class::Unknown),
+            "{case}: every executed instruction is in the cycle table: {:?}",
+            c.median.mix.keys()
+        );
+        println!("{case}:\n{}", c.render(u64::from(report.macs_per_frame)));
     }
 }
