@@ -10,13 +10,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, Context, Result};
-use exporter::net::omg::{omg_from_bytes, OmgConfig, OmgNet, HEADROOM};
+use exporter::net::omg::{omg_from_bytes, OmgNet, HEADROOM};
 use exporter::quantise::QuantOptions;
 use phasegate::blob::WeightFormat;
 
 use crate::omg::{diff, rollout, Diff, FixedOmg, FloatOmg, Mode};
 use crate::omg_reach::{median, reach_stats, TargetStats};
-use crate::render::canvas::{Canvas, Frame2, Rgb, BLACK, BLUE, GREEN, GREY, ORANGE, WHITE};
+use crate::render::canvas::{BLUE, ORANGE};
 
 const WEIGHTS: &[u8] = include_bytes!("../../models/omg/tiny_fe_r1/model.safetensors");
 const CONFIG: &str = include_str!("../../models/omg/tiny_fe_r1/config.json");
@@ -327,117 +327,32 @@ impl OmgDemo {
 /// Front view (x right, y up, root space) with the skeleton at a few
 /// frames, both hands' paths (float and fixed) and the targets.
 fn draw(e: &Embedded, float: &Run, fixed: &Run, path: &Path) -> Result<()> {
-    let cfg: &OmgConfig = &e.omg.config;
-    let (pos, tpos) = (cfg.slice("pos"), cfg.slice("target_pos"));
-    let joint = |f: &[f64], j: usize| (f[pos.start + 3 * j], f[pos.start + 3 * j + 1]);
-    let (mut lo, mut hi) = ((f64::MAX, f64::MAX), (f64::MIN, f64::MIN));
-    let mut grow = |p: (f64, f64)| {
-        lo = (lo.0.min(p.0), lo.1.min(p.1));
-        hi = (hi.0.max(p.0), hi.1.max(p.1));
-    };
-    for f in float.frames.iter().chain(&fixed.frames) {
-        for j in 0..cfg.joints {
-            grow(joint(f, j));
-        }
-    }
-    for tb in &e.targets {
-        let off = tpos.start - cfg.slice("target").start;
-        for h in 0..2 {
-            grow((tb[off + 3 * h], tb[off + 3 * h + 1]));
-        }
-    }
-    let (w, h) = (900usize, 760usize);
-    let mut c = Canvas::new(w, h, WHITE);
-    let pad = 0.08;
-    let fr = Frame2::new(
-        (70.0, 60.0, w as f64 - 30.0, h as f64 - 110.0),
-        (lo.0 - pad, hi.0 + pad),
-        (lo.1 - pad, hi.1 + pad),
-        true,
-    );
-    crate::render::grid(&mut c, &fr, "x (m, root space)", "y (m)", false);
-    c.text(
-        70.0,
-        20.0,
+    use crate::omg_rollout::picture::{draw, Layer};
+    use crate::omg_rollout::record::OmgRecord;
+    let parents = e
+        .parents
+        .iter()
+        .map(|&p| i32::try_from(p).context("embedded rig.json: bad parent"))
+        .collect::<Result<Vec<_>>>()?;
+    let record = |r: &Run| OmgRecord::new(&e.omg.config, &parents, r.frames.clone());
+    let (fixed, float) = (record(fixed)?, record(float)?);
+    draw(
+        &[
+            Layer {
+                record: &fixed,
+                label: "fixed point (int8)".into(),
+                colour: BLUE,
+                width: 1.5,
+            },
+            Layer {
+                record: &float,
+                label: "float (f64)".into(),
+                colour: ORANGE,
+                width: 4.0,
+            },
+        ],
         "tiny FE-OMG reaching a held-out clip's targets: front view",
-        2,
-        BLACK,
-    );
-    // Skeletons of the fixed run at a few frames, lighter when earlier.
-    let snaps = crate::render::snapshot_frames(fixed.frames.len(), 5);
-    for (i, &t) in snaps.iter().enumerate() {
-        let shade = (200.0 - 160.0 * i as f64 / (snaps.len().max(2) - 1) as f64) as u8;
-        let col: Rgb = [shade, shade, shade];
-        let f = &fixed.frames[t];
-        for (j, &p) in e.parents.iter().enumerate() {
-            if let Ok(p) = usize::try_from(p) {
-                c.line(
-                    fr.map(joint(f, j).0, joint(f, j).1),
-                    {
-                        let q = joint(f, p);
-                        fr.map(q.0, q.1)
-                    },
-                    2.0,
-                    col,
-                );
-            }
-        }
-    }
-    // Hand paths.
-    // Float wider underneath, so that where the two agree both show.
-    for (run, col, width) in [(float, ORANGE, 4.0), (fixed, BLUE, 1.5)] {
-        for &kj in cfg.key_joint_indices.iter().take(2) {
-            let pts: Vec<(f64, f64)> = run
-                .frames
-                .iter()
-                .map(|f| {
-                    let p = joint(f, kj);
-                    fr.map(p.0, p.1)
-                })
-                .collect();
-            c.polyline(&pts, width, col);
-        }
-    }
-    // Targets (each distinct one once).
-    let off = tpos.start - cfg.slice("target").start;
-    let mut seen: Vec<(f64, f64)> = Vec::new();
-    for tb in &e.targets {
-        for h in 0..2 {
-            let p = (tb[off + 3 * h], tb[off + 3 * h + 1]);
-            if !seen
-                .iter()
-                .any(|q| (q.0 - p.0).abs() < 1e-6 && (q.1 - p.1).abs() < 1e-6)
-            {
-                seen.push(p);
-                let (x, y) = fr.map(p.0, p.1);
-                c.disc(x, y, 7.0, GREEN);
-                let r = fr.map(p.0 + 0.1, p.1);
-                let rad = (r.0 - x).abs();
-                for a in 0..64 {
-                    let t = a as f64 / 64.0 * std::f64::consts::TAU;
-                    c.disc(x + rad * t.cos(), y + rad * t.sin(), 1.0, GREEN);
-                }
-            }
-        }
-    }
-    // Legend.
-    let ly = h as f64 - 60.0;
-    let items: [(&str, Rgb); 4] = [
-        ("hand paths, fixed point (int8)", BLUE),
-        ("hand paths, float (f64)", ORANGE),
-        ("targets and their 0.1 m reach radius", GREEN),
-        ("skeleton (fixed) at 5 frames, darker = later", GREY),
-    ];
-    for (i, (label, col)) in items.iter().enumerate() {
-        let x = 70.0 + (i % 2) as f64 * 420.0;
-        let y = ly + (i / 2) as f64 * 22.0;
-        c.line((x, y + 4.0), (x + 30.0, y + 4.0), 3.0, *col);
-        c.text(x + 38.0, y, label, 1, BLACK);
-    }
-    if let Some(dir) = path.parent() {
-        if !dir.as_os_str().is_empty() {
-            std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
-        }
-    }
-    c.save_png(path)
+        5,
+        path,
+    )
 }

@@ -48,8 +48,10 @@ pub const TEXT_BUDGETS: Budgets = Budgets {
     inference_core: 51_312,
     // CEILING, not the bar (48 KiB): 66,304 B measured 2026-11-30 (65,064 B
     // before the per-stage profile; issue 4's 64 KiB no longer holds; +56 B
-    // for the frame marks `--cycles` traces, 66,248 B without).
-    firmware: 66_304,
+    // for the frame marks `--cycles` traces, 66,248 B without), and 66,308 B
+    // from another checkout of the same commit: the path changes the code
+    // layout by a few bytes, hence 16 B over the measurement.
+    firmware: 66_320,
     // CEILING, not the bar (64 KiB): 92,380 B measured 2026-11-30 (91,404 B
     // before the frame-deadline policy and the DSP kernels).
     controller_firmware: 92_380,

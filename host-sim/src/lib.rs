@@ -13,6 +13,7 @@ pub mod golden;
 pub mod npy;
 pub mod omg;
 pub mod omg_reach;
+pub mod omg_rollout;
 pub mod quant_knobs;
 pub mod render;
 pub mod rollout;

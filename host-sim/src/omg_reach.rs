@@ -280,7 +280,7 @@ fn rollouts(
 }
 
 /// The rig named in `dir`'s `config.json`.
-fn rig_of(dir: &Path) -> Result<String> {
+pub(crate) fn rig_of(dir: &Path) -> Result<String> {
     let path = dir.join("config.json");
     let v: serde_json::Value = serde_json::from_slice(
         &std::fs::read(&path).with_context(|| format!("{}", path.display()))?,

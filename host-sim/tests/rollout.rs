@@ -122,8 +122,11 @@ fn rollout_compare_render_and_plot_end_to_end() {
         gating: None,
         precision: Precision::F64,
         script: "zigzag".into(),
-        frames: 90,
+        frames: Some(90),
         out: fixed_out.clone(),
+        omg: None,
+        data: None,
+        faithful: false,
     };
     rollout_cmd(&args).unwrap();
     let again = dir.path().join("again.npz");
@@ -175,8 +178,11 @@ fn rollout_compare_render_and_plot_end_to_end() {
         gating: None,
         precision: Precision::F64,
         script: "walk".into(),
-        frames: 10,
+        frames: Some(10),
         out: dir.path().join("x.npz"),
+        omg: None,
+        data: None,
+        faithful: false,
     })
     .is_err());
     assert!(Rollout::read(&dir.path().join("cmp.json")).is_err());
@@ -193,4 +199,74 @@ fn float_reference_runs_the_same_loop() {
     for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
         assert_eq!(*x as f32, *y as f32);
     }
+}
+
+/// An OMG model through the same three commands: a target script rolled
+/// out in f64 and as an int16 blob, compared, and drawn.
+#[test]
+fn omg_rollout_compare_and_render_end_to_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let omg = repo().join("models/omg/tiny_fe_r1");
+    let d = host_sim::omg::load_dir(&omg).unwrap();
+    let blob = host_sim::omg::export(
+        &d,
+        phasegate::blob::WeightFormat::I16,
+        // As `exporter omg` exports it.
+        &exporter::quantise::QuantOptions {
+            headroom: exporter::net::omg::HEADROOM,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let blob_path = dir.path().join("omg16.blob");
+    std::fs::write(&blob_path, blob).unwrap();
+    let float_out = dir.path().join("float.npz");
+    let args = RolloutArgs {
+        model: None,
+        reference: None,
+        gating: None,
+        precision: Precision::F64,
+        script: "reach-front".into(),
+        frames: Some(60),
+        out: float_out.clone(),
+        omg: Some(omg.clone()),
+        data: None,
+        faithful: false,
+    };
+    rollout_cmd(&args).unwrap();
+    let fixed_out = dir.path().join("fixed.npz");
+    rollout_cmd(&RolloutArgs {
+        model: Some(blob_path),
+        out: fixed_out.clone(),
+        ..args
+    })
+    .unwrap();
+    let json = dir.path().join("cmp.json");
+    rollout_compare_cmd(&RolloutCompareArgs {
+        a: float_out.clone(),
+        b: fixed_out.clone(),
+        every: 30,
+        json: Some(json.clone()),
+    })
+    .unwrap();
+    let c: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let p99 = c["p99_m"].as_f64().unwrap();
+    assert!(p99 > 0.0 && p99 < 0.01, "int16 vs f64 p99 {p99} m");
+    let png = dir.path().join("omg.png");
+    render_cmd(&RenderArgs {
+        a: fixed_out.clone(),
+        b: Some(float_out.clone()),
+        out: png.clone(),
+        snapshots: 4,
+    })
+    .unwrap();
+    assert_eq!(&std::fs::read(&png).unwrap()[..8], b"\x89PNG\r\n\x1a\n");
+    // A locomotion rollout and an OMG rollout do not compare.
+    assert!(rollout_compare_cmd(&RolloutCompareArgs {
+        a: float_out,
+        b: repo().join("tests/golden/default/model.blob"),
+        every: 30,
+        json: None,
+    })
+    .is_err());
 }

@@ -113,6 +113,10 @@ pub struct OmgConfig {
     pub key: usize,
     /// Indices of the key joints among the rig's joints.
     pub key_joint_indices: Vec<usize>,
+    /// Names of the key joints, in the same order (target scripts name
+    /// them; empty in a config that does not give them).
+    #[serde(default)]
+    pub key_joints: Vec<String>,
     /// Width n of X and Y.
     pub model_width: usize,
     /// Sizes.
@@ -742,6 +746,7 @@ mod tests {
             joints: j,
             key: k,
             key_joint_indices: vec![1],
+            key_joints: vec!["LeftHand".into()],
             model_width: n,
             sizes: OmgSizes {
                 ae_hidden: hae,

@@ -4,7 +4,7 @@
 pub mod canvas;
 mod font;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use phasegate_controller::layout::{JOINTS, PARENTS};
 use std::path::PathBuf;
 
@@ -53,6 +53,9 @@ pub struct RenderArgs {
 /// its own root frame, facing right) above a top view of the world with the
 /// root paths and the same snapshots.
 pub fn render_cmd(args: &RenderArgs) -> Result<()> {
+    if crate::omg_rollout::record::OmgRecord::is_record(&args.a)? {
+        return render_omg(args);
+    }
     let a = Rollout::read(&args.a)?;
     let b = args.b.as_ref().map(|p| Rollout::read(p)).transpose()?;
     if let Some(b) = &b {
@@ -355,6 +358,55 @@ pub fn plot_errors(cmp: &crate::rollout::Comparison, title: &str) -> Canvas {
         c.rect(left, pt, right, pb, GREY);
     }
     c
+}
+
+/// `host-sim render` of OMG reaching rollouts: the front view of
+/// [`crate::omg_rollout::picture`].
+fn render_omg(args: &RenderArgs) -> Result<()> {
+    use crate::omg_rollout::picture::{draw, Layer};
+    use crate::omg_rollout::record::OmgRecord;
+    let a = OmgRecord::read(&args.a)?;
+    let b = args.b.as_ref().map(|p| OmgRecord::read(p)).transpose()?;
+    if a.is_empty() {
+        bail!("{} has no frames", args.a.display());
+    }
+    if let Some(b) = &b {
+        crate::omg_rollout::compare(&a, b).with_context(|| {
+            format!(
+                "{} vs {}",
+                args.a.display(),
+                args.b.as_deref().unwrap_or(&args.a).display()
+            )
+        })?;
+    }
+    let name = |p: &std::path::Path| {
+        p.file_name().map_or_else(
+            || p.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        )
+    };
+    let mut layers = vec![Layer {
+        record: &a,
+        label: name(&args.a),
+        colour: canvas::BLUE,
+        width: 1.5,
+    }];
+    if let (Some(b), Some(path)) = (&b, &args.b) {
+        layers.push(Layer {
+            record: b,
+            label: name(path),
+            colour: canvas::ORANGE,
+            width: 4.0,
+        });
+    }
+    draw(
+        &layers,
+        "OMG reaching rollout: front view",
+        args.snapshots.clamp(1, 40),
+        &args.out,
+    )?;
+    println!("wrote {}", args.out.display());
+    Ok(())
 }
 
 #[cfg(test)]

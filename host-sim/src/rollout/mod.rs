@@ -47,13 +47,26 @@ pub enum Precision {
 /// `host-sim rollout`.
 #[derive(Debug, clap::Args)]
 pub struct RolloutArgs {
-    /// A model blob: runs the device controller (fixed point).
+    /// A model blob: runs the device controller (fixed point); with
+    /// --omg, the blob of that OMG model.
     #[arg(
         long,
         conflicts_with = "reference",
-        required_unless_present = "reference"
+        required_unless_present_any = ["reference", "omg"]
     )]
     pub model: Option<PathBuf>,
+    /// An OMG model directory (models/omg/...): a reaching rollout whose
+    /// --script is a target script (reach-front, alternate, a JSON file,
+    /// ref:N, clip:N; docs/omg.md), in f64 or, with --model, fixed point.
+    #[arg(long, conflicts_with = "reference")]
+    pub omg: Option<PathBuf>,
+    /// With --omg and clip:N: the generated data (tools/omg/generate --out).
+    #[arg(long, requires = "omg")]
+    pub data: Option<PathBuf>,
+    /// With --omg: feed the predicted costs back (faithful mode) instead of
+    /// recomputing them (grounded, the default).
+    #[arg(long, requires = "omg")]
+    pub faithful: bool,
     /// A PFNN weight directory or PFNN-shaped .npz: runs the float reference.
     #[arg(long, requires = "gating")]
     pub reference: Option<PathBuf>,
@@ -67,9 +80,10 @@ pub struct RolloutArgs {
     /// crouch-walk) or a JSON script file (format in docs/controller.md).
     #[arg(long)]
     pub script: String,
-    /// Frames to run (60 per second).
-    #[arg(long, default_value_t = 600)]
-    pub frames: usize,
+    /// Frames to run, 60 per second (default 600; with --omg the target
+    /// script's length).
+    #[arg(long)]
+    pub frames: Option<usize>,
     /// Where to write the rollout (.npz).
     #[arg(long)]
     pub out: PathBuf,
@@ -89,7 +103,8 @@ pub fn load_reference(path: &Path, mode: GatingMode) -> Result<Net> {
 /// description of the controller.
 pub fn rollout_from_args(args: &RolloutArgs) -> Result<(Rollout, String)> {
     let script = Script::load(&args.script)?;
-    if args.frames == 0 {
+    let frames = args.frames.unwrap_or(DEFAULT_FRAMES);
+    if frames == 0 {
         bail!("--frames must be at least 1");
     }
     if let Some(model) = &args.model {
@@ -99,7 +114,7 @@ pub fn rollout_from_args(args: &RolloutArgs) -> Result<(Rollout, String)> {
             .map_err(|e| anyhow!("{}: {e}", model.display()))?;
         let ram = ctl.device_ram_bytes();
         let state = crate::controller::HostController::STATE_RAM_BYTES;
-        let r = run(&mut ctl, &script, args.frames)?;
+        let r = run(&mut ctl, &script, frames)?;
         let label = format!(
             "{}\ncontroller RAM on a device sized for this model: {ram} bytes ({state} of loop state, the rest activations and header)",
             ctl.describe()
@@ -113,19 +128,52 @@ pub fn rollout_from_args(args: &RolloutArgs) -> Result<(Rollout, String)> {
         let (r, label) = match args.precision {
             Precision::F64 => {
                 let mut c = reference_f64(&net)?;
-                (run(&mut c, &script, args.frames)?, c.describe())
+                (run(&mut c, &script, frames)?, c.describe())
             }
             Precision::F32 => {
                 let mut c = reference_f32(&net)?;
-                (run(&mut c, &script, args.frames)?, c.describe())
+                (run(&mut c, &script, frames)?, c.describe())
             }
         };
         Ok((r, format!("{label} ({})", path.display())))
     }
 }
 
+/// Frames of a locomotion rollout when `--frames` is not given.
+pub const DEFAULT_FRAMES: usize = 600;
+
+/// `host-sim rollout --omg`: the reaching rollout, its record and reach.
+fn omg_rollout_cmd(args: &RolloutArgs, dir: &Path) -> Result<()> {
+    let (r, label) = crate::omg_rollout::run(&crate::omg_rollout::OmgRolloutArgs {
+        dir: dir.to_path_buf(),
+        model: args.model.clone(),
+        script: args.script.clone(),
+        data: args.data.clone(),
+        frames: args.frames,
+        mode: if args.faithful {
+            crate::omg::Mode::Faithful
+        } else {
+            crate::omg::Mode::Grounded
+        },
+    })?;
+    r.write(&args.out)?;
+    println!("{label}");
+    println!(
+        "targets {}: {} frames ({:.1} s) -> {}",
+        args.script,
+        r.len(),
+        r.len() as f64 / r.frame_rate,
+        args.out.display()
+    );
+    print!("{}", crate::omg_rollout::reach_table(&r));
+    Ok(())
+}
+
 /// `host-sim rollout`: runs, writes the .npz, prints the sanity metrics.
 pub fn rollout_cmd(args: &RolloutArgs) -> Result<()> {
+    if let Some(dir) = &args.omg {
+        return omg_rollout_cmd(args, dir);
+    }
     let (r, label) = rollout_from_args(args)?;
     r.write(&args.out)?;
     let last = r.poses.last().ok_or_else(|| anyhow!("no frames"))?;
@@ -166,6 +214,20 @@ pub struct RolloutCompareArgs {
 /// `host-sim rollout-compare`: per-frame and summary errors, and both
 /// rollouts' sanity metrics.
 pub fn rollout_compare_cmd(args: &RolloutCompareArgs) -> Result<()> {
+    if crate::omg_rollout::record::OmgRecord::is_record(&args.a)? {
+        use crate::omg_rollout::{compare as omg_compare, reach_table, record::OmgRecord};
+        let (a, b) = (OmgRecord::read(&args.a)?, OmgRecord::read(&args.b)?);
+        let c = omg_compare(&a, &b)
+            .with_context(|| format!("{} vs {}", args.a.display(), args.b.display()))?;
+        println!("A = {}\nB = {}\n", args.a.display(), args.b.display());
+        print!("{}", c.table(args.every));
+        println!("\nA reach:\n{}", reach_table(&a));
+        println!("B reach:\n{}", reach_table(&b));
+        if let Some(path) = &args.json {
+            exporter::atomic::write_atomic(path, &serde_json::to_vec_pretty(&c)?)?;
+        }
+        return Ok(());
+    }
     let (a, b) = (Rollout::read(&args.a)?, Rollout::read(&args.b)?);
     let c = compare(&a, &b)?;
     println!("A = {}\nB = {}\n", args.a.display(), args.b.display());
