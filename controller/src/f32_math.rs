@@ -79,8 +79,9 @@ fn reduce_octant(ax: f32) -> (u32, f32) {
         // pi/4 = DP1 + DP2 + DP3; DP1 and DP2 have few enough bits that
         // `y * DP1` and `y * DP2` are exact below the limit.
         const DP1: f32 = 0.785_156_25;
+        #[allow(clippy::excessive_precision)] // the exact value of the part
         const DP2: f32 = 2.418_756_484_985_351_562_5e-4;
-        const DP3: f32 = 3.774_894_977_445_941e-8;
+        const DP3: f32 = 3.774_895e-8;
         let mut j = (ax * (4.0 / PI)) as u32;
         let mut y = j as f32;
         if j & 1 != 0 {
@@ -133,8 +134,8 @@ pub fn sin_cos(x: f32) -> (f32, f32) {
     let (j, z) = reduce_octant(ax);
     let zz = z * z;
     let s = ((-1.951_529_6e-4 * zz + 8.332_161e-3) * zz - 1.666_665_5e-1) * zz * z + z;
-    let c = ((2.443_315_7e-5 * zz - 1.388_731_6e-3) * zz + 4.166_664_6e-2) * zz * zz - 0.5 * zz
-        + 1.0;
+    let c =
+        ((2.443_315_7e-5 * zz - 1.388_731_6e-3) * zz + 4.166_664_6e-2) * zz * zz - 0.5 * zz + 1.0;
     // Octant j (even) of |x|: 0 -> (s, c), 2 -> (c, -s), 4 -> (-s, -c),
     // 6 -> (-c, s).
     let (sin, cos) = match j {
@@ -187,7 +188,7 @@ pub fn atan2(y: f32, x: f32) -> f32 {
 
 /// `asin x` for `0 <= x <= 1/2`, `z = x^2`.
 fn asin_small(x: f32, z: f32) -> f32 {
-    ((((4.216_32e-2 * z + 2.418_131_1e-2) * z + 4.547_002_6e-2) * z + 7.495_300_3e-2) * z
+    ((((4.216_32e-2 * z + 2.418_131e-2) * z + 4.547_002_6e-2) * z + 7.495_300_3e-2) * z
         + 1.666_675_2e-1)
         * z
         * x
@@ -246,9 +247,9 @@ fn exp2(y: f32) -> f32 {
     }
     let k = libm::floorf(y + 0.5);
     let f = y - k; // exact, in [-1/2, 1/2]
-    // 2^f = sum (f ln 2)^n / n!, to n = 7 (remainder below 6e-9).
+                   // 2^f = sum (f ln 2)^n / n!, to n = 7 (remainder below 6e-9).
     const C: [f32; 7] = [
-        0.693_147_2,
+        core::f32::consts::LN_2,
         0.240_226_5,
         5.550_411e-2,
         9.618_129e-3,
@@ -256,10 +257,7 @@ fn exp2(y: f32) -> f32 {
         1.540_353e-4,
         1.525_273_4e-5,
     ];
-    let p = C
-        .iter()
-        .rev()
-        .fold(0.0f32, |acc, &c| acc * f + c);
+    let p = C.iter().rev().fold(0.0f32, |acc, &c| acc * f + c);
     let r = 1.0 + f * p;
     // r in [0.70, 1.42]; scale by 2^k in two steps so that k = 128 and
     // k = -126 (r < 1) stay representable on the way.
@@ -302,7 +300,11 @@ mod tests {
     }
 
     /// Largest absolute error of `f` against `g` (in f64) over `xs`.
-    fn max_abs(xs: impl Iterator<Item = f32>, f: impl Fn(f32) -> f32, g: impl Fn(f64) -> f64) -> f64 {
+    fn max_abs(
+        xs: impl Iterator<Item = f32>,
+        f: impl Fn(f32) -> f32,
+        g: impl Fn(f64) -> f64,
+    ) -> f64 {
         xs.map(|x| (f64::from(f(x)) - g(f64::from(x))).abs())
             .fold(0.0, f64::max)
     }

@@ -201,7 +201,8 @@ impl<R: Real> Trajectory<R> {
         for (i, (p, d)) in future {
             // Frame CURRENT + 10 k holds predicted sample k.
             let k = (i - CURRENT) / SAMPLE_STEP;
-            let m = R::from_u32(((i - CURRENT) % SAMPLE_STEP) as u32) / R::from_u32(SAMPLE_STEP as u32);
+            let m =
+                R::from_u32(((i - CURRENT) % SAMPLE_STEP) as u32) / R::from_u32(SAMPLE_STEP as u32);
             let lerp = |s: &[R]| at(s, k).mix(at(s, k + 1), m);
             let local = yaw2(facing, [lerp(px), lerp(pz)]);
             *p = [local[0] + pos[0], local[1] + pos[1]];
