@@ -152,7 +152,7 @@ fn clamp_length(v: [f32; 2], max: f32) -> [f32; 2] {
         return v; // |v| <= sqrt(2) m <= max: nothing to do
     }
     let u = [v[0] / m, v[1] / m];
-    let n = libm::sqrtf(u[0] * u[0] + u[1] * u[1]); // in [1, sqrt 2]
+    let n = crate::f32_math::sqrt(u[0] * u[0] + u[1] * u[1]); // in [1, sqrt 2]
     if m * n <= max {
         v
     } else {
@@ -166,7 +166,7 @@ fn unit_or_none(v: [f32; 2]) -> Option<[f32; 2]> {
         return None;
     }
     let u = [v[0] / m, v[1] / m];
-    let n = libm::sqrtf(u[0] * u[0] + u[1] * u[1]);
+    let n = crate::f32_math::sqrt(u[0] * u[0] + u[1] * u[1]);
     if n * m < MIN_FACING {
         None
     } else {

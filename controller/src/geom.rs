@@ -52,7 +52,8 @@ pub fn unyaw2<R: Real>(f: Vec2<R>, v: Vec2<R>) -> Vec2<R> {
 
 /// `v` turned by `angle` radians of yaw.
 pub fn turn2<R: Real>(v: Vec2<R>, angle: R) -> Vec2<R> {
-    yaw2([angle.sin(), angle.cos()], v)
+    let (s, c) = angle.sin_cos();
+    yaw2([s, c], v)
 }
 
 /// 3-D `v` turned by the yaw whose facing is `f`.
@@ -71,6 +72,7 @@ pub fn unyaw3<R: Real>(f: Vec2<R>, v: Vec3<R>) -> Vec3<R> {
 /// of the (shortest) yaw angle between them; the result is a unit facing.
 /// Written with one `atan2` of the relative angle instead of two absolute
 /// angles and a quaternion slerp: the same rotation, fewer roundings.
+#[inline(never)] // three call sites in the loop: one copy in flash
 pub fn mix_directions<R: Real>(from: Vec2<R>, to: Vec2<R>, a: R) -> Vec2<R> {
     let u = normalise2(from);
     let v = normalise2(to);
@@ -83,10 +85,12 @@ pub fn mix_directions<R: Real>(from: Vec2<R>, to: Vec2<R>, a: R) -> Vec2<R> {
 /// the quaternion `(l sin|l| / |l|, cos|l|)` (so the rotation angle is
 /// `2|l|`). Unlike the demo, which returns the identity below `|l| = 0.01`,
 /// this is continuous: `sin|l| / |l|` tends to 1.
+#[inline(never)] // two call sites (reset, every joint): one copy in flash
 pub fn quat_exp<R: Real>(l: Vec3<R>) -> Quat<R> {
     let w = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
-    let k = if w > R::ZERO { w.sin() / w } else { R::ONE };
-    normalise_quat([l[0] * k, l[1] * k, l[2] * k, w.cos()])
+    let (sin, cos) = w.sin_cos();
+    let k = if w > R::ZERO { sin / w } else { R::ONE };
+    normalise_quat([l[0] * k, l[1] * k, l[2] * k, cos])
 }
 
 /// `q / |q|`; a zero or non-finite quaternion gives the identity.

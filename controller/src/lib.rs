@@ -29,6 +29,7 @@
 mod command;
 pub mod deadline;
 mod error;
+mod f32_math;
 pub mod geom;
 pub mod layout;
 mod locomotion;

@@ -201,9 +201,10 @@ impl<R: Real> Locomotion<R> {
         self.pose.frame = self.pose.frame.wrapping_add(1);
 
         // How much the character is not standing, the demo's
-        // (1 - stand)^0.25: it scales root motion and phase speed.
+        // (1 - stand)^0.25 (as two square roots, correctly rounded each): it
+        // scales root motion and phase speed.
         let stand = self.pose.gaits[gait::STAND].clamp_to(R::ZERO, R::ONE);
-        let moving = (R::ONE - stand).powf(R::lit(0.25));
+        let moving = (R::ONE - stand).sqrt().sqrt();
         self.trajectory.advance(&y, moving);
         let rate = moving * R::lit(0.9) + R::lit(0.1);
         self.phase = wrap_cycle(self.phase + rate * y.phase_change);

@@ -2,14 +2,15 @@
 //!
 //! One loop, two precisions: the device runs it in `f32`, the host's float
 //! reference in `f64` (and `f32`), so fixed and float differ only in the
-//! network and in rounding, never in the glue. All transcendental functions
-//! come from the `libm` crate (a pure-Rust port of musl's libm): the same
-//! source runs on x86-64 and on Cortex-M, uses no fused multiply-add, and
-//! every basic operation it builds on is IEEE-exact, so the same inputs give
-//! the same bits on both.
+//! network and in rounding, never in the glue. `f32`'s functions are
+//! [`crate::f32_math`]'s: `f32` operations only (the Cortex-M4F's FPU has no
+//! `f64`), none fused, each IEEE-exact, so the same inputs give the same bits
+//! on x86-64 and on the device. `f64`'s (the host's reference) are libm's.
 
 use core::fmt::Debug;
 use core::ops::{Add, AddAssign, Div, Mul, Neg, Sub, SubAssign};
+
+use crate::f32_math;
 
 /// A real number type the controller can run on (`f32` or `f64`).
 pub trait Real:
@@ -47,12 +48,20 @@ pub trait Real:
     fn acos(self) -> Self;
     /// Four-quadrant arctangent of `self / x`, radians in `[-pi, pi]`.
     fn atan2(self, x: Self) -> Self;
-    /// `self` to the power `e`.
+    /// `self` to the power `e`, for `self >= 0`.
     fn powf(self, e: Self) -> Self;
+    /// A count, exactly (below 2^24).
+    fn from_u32(n: u32) -> Self;
     /// Largest integer not above `self`.
     fn floor(self) -> Self;
     /// Neither NaN nor infinite.
     fn is_finite(self) -> bool;
+
+    /// `(sin self, cos self)`, the same bits as [`Real::sin`] and
+    /// [`Real::cos`] (one reduction where the type can share it).
+    fn sin_cos(self) -> (Self, Self) {
+        (self.sin(), self.cos())
+    }
 
     /// Absolute value.
     fn abs(self) -> Self {
@@ -98,22 +107,28 @@ impl Real for f32 {
         f64::from(self)
     }
     fn sqrt(self) -> Self {
-        libm::sqrtf(self)
+        f32_math::sqrt(self)
     }
     fn sin(self) -> Self {
-        libm::sinf(self)
+        f32_math::sin_cos(self).0
     }
     fn cos(self) -> Self {
-        libm::cosf(self)
+        f32_math::sin_cos(self).1
+    }
+    fn sin_cos(self) -> (Self, Self) {
+        f32_math::sin_cos(self)
     }
     fn acos(self) -> Self {
-        libm::acosf(self)
+        f32_math::acos(self)
     }
     fn atan2(self, x: Self) -> Self {
-        libm::atan2f(self, x)
+        f32_math::atan2(self, x)
     }
     fn powf(self, e: Self) -> Self {
-        libm::powf(self, e)
+        f32_math::powf(self, e)
+    }
+    fn from_u32(n: u32) -> Self {
+        n as f32
     }
     fn floor(self) -> Self {
         libm::floorf(self)
@@ -156,6 +171,9 @@ impl Real for f64 {
     fn powf(self, e: Self) -> Self {
         libm::pow(self, e)
     }
+    fn from_u32(n: u32) -> Self {
+        f64::from(n)
+    }
     fn floor(self) -> Self {
         libm::floor(self)
     }
@@ -178,7 +196,7 @@ mod tests {
     }
 
     #[test]
-    fn libm_is_accurate_where_the_loop_needs_it() {
+    fn f32_is_accurate_where_the_loop_needs_it() {
         // A root turn of 0.01 rad per frame must not be distorted: this is
         // why the loop does not use a coarse approximation library.
         let a = 0.01f32;

@@ -119,7 +119,7 @@ impl<R: Real> Trajectory<R> {
             .enumerate()
             .skip(CURRENT + 1);
         for (i, ((p, d), g)) in future {
-            let t = R::lit((i - CURRENT) as f64) / R::lit(CURRENT as f64);
+            let t = R::from_u32((i - CURRENT) as u32) / R::from_u32(CURRENT as u32);
             let scale_pos = R::ONE - (R::ONE - t).powf(bias_pos);
             let scale_dir = R::ONE - (R::ONE - t).powf(bias_dir);
             let old = *p;
@@ -201,7 +201,8 @@ impl<R: Real> Trajectory<R> {
         for (i, (p, d)) in future {
             // Frame CURRENT + 10 k holds predicted sample k.
             let k = (i - CURRENT) / SAMPLE_STEP;
-            let m = R::lit(((i - CURRENT) % SAMPLE_STEP) as f64) / R::lit(SAMPLE_STEP as f64);
+            let m =
+                R::from_u32(((i - CURRENT) % SAMPLE_STEP) as u32) / R::from_u32(SAMPLE_STEP as u32);
             let lerp = |s: &[R]| at(s, k).mix(at(s, k + 1), m);
             let local = yaw2(facing, [lerp(px), lerp(pz)]);
             *p = [local[0] + pos[0], local[1] + pos[1]];
