@@ -79,7 +79,8 @@ impl Booted {
     }
 }
 
-/// Boots the firmware `elf` with `blob` (if any) at MODEL, the STYLES image
+/// Boots the firmware `elf` with `blob` (if any) at MODEL (at BIGMODEL when
+/// it does not fit MODEL), the STYLES image
 /// `styles` (if any) at STYLES and the input image `image` (if any) at
 /// HOSTIO; decodes the log. Does not judge the exit code.
 pub fn boot(
@@ -100,14 +101,21 @@ pub fn boot(
             .with_context(|| format!("cannot read {}", b.display()))?
             .len();
         let room = elf.model.1 - elf.model.0;
-        ensure!(
-            len <= room,
-            "{} is {len} bytes, the MODEL region (memory.x) holds {room} bytes",
-            b.display()
-        );
+        // MODEL, or BIGMODEL for a blob too large for it (the firmware
+        // looks there when MODEL holds no blob).
+        let addr = match elf.bigmodel {
+            _ if len <= room => elf.model.0,
+            Some((start, end)) if len <= end - start => start,
+            big => bail!(
+                "{} is {len} bytes, the MODEL region (memory.x) holds {room} bytes{}",
+                b.display(),
+                big.map(|(s, e)| format!(" and BIGMODEL {}", e - s))
+                    .unwrap_or_default()
+            ),
+        };
         loads.push(qemu::Load {
             file: b.to_path_buf(),
-            addr: elf.model.0,
+            addr,
         });
     }
     // The images host-sim writes: what, its file name, its region, and what

@@ -14,7 +14,7 @@
 //! algorithm on the host, `firmware/src/bin/kernel-check.rs` the assembly
 //! under QEMU).
 
-use super::{Kernel, Weight, W16, W8I};
+use super::{Acc, Kernel, Weight, W16, W16L, W8I};
 use core::marker::PhantomData;
 
 #[cfg(phasegate_dsp)]
@@ -29,29 +29,32 @@ mod emulation;
 /// Inputs per iteration of every block loop (two `LDM`s of eight).
 pub(super) const BLOCK: usize = 16;
 
-/// A layout the block loops read.
+/// A layout the block loops read, with the accumulator they keep.
 pub(super) trait Packed: Weight {
     /// Bytes of the weights of one input.
     const BYTES: usize;
+    /// `i32` (`SMLAD`) or `i64` (`SMLALD`).
+    type Sum: Acc;
 
-    /// The 32-bit (wrapping) dot product of a row that starts at a group
-    /// boundary with `x`: a plain loop, small rather than fast (it covers
-    /// fewer than [`BLOCK`] inputs, or rows that are not word-aligned).
-    fn tail(row: &[u8], x: &[i16]) -> i32;
+    /// `acc` plus the (wrapping) dot product of a row that starts at a
+    /// group boundary with `x`: a plain loop, small rather than fast (it
+    /// covers fewer than [`BLOCK`] inputs, or rows that are not
+    /// word-aligned).
+    fn tail(acc: Self::Sum, row: &[u8], x: &[i16]) -> Self::Sum;
 }
 
 impl Packed for W8I {
     const BYTES: usize = 1;
+    type Sum = i32;
 
     /// Group by group: stored `w0 w2 w1 w3` meet `x0 x2 x1 x3`; in the
     /// last, partial group input `s` meets slot `position(s)` (padding
     /// meets nothing).
     #[inline(never)]
-    fn tail(row: &[u8], x: &[i16]) -> i32 {
+    fn tail(mut acc: i32, row: &[u8], x: &[i16]) -> i32 {
         let w8 = |b: u8| i32::from(b as i8);
         let (groups, _) = row.as_chunks::<4>();
         let (xs, rest) = x.as_chunks::<4>();
-        let mut acc = 0i32;
         for (w, v) in groups.iter().zip(xs) {
             let [x0, x1, x2, x3] = v.map(i32::from);
             let t = w8(w[0]) * x0 + w8(w[1]) * x2 + w8(w[2]) * x1 + w8(w[3]) * x3;
@@ -68,26 +71,42 @@ impl Packed for W8I {
 
 impl Packed for W16 {
     const BYTES: usize = 2;
+    type Sum = i32;
 
     #[inline(never)]
-    fn tail(row: &[u8], x: &[i16]) -> i32 {
-        let mut acc = 0i32;
-        for (w, &v) in row.as_chunks::<2>().0.iter().zip(x) {
-            acc = acc.wrapping_add(i32::from(i16::from_le_bytes(*w)) * i32::from(v));
-        }
-        acc
+    fn tail(acc: i32, row: &[u8], x: &[i16]) -> i32 {
+        tail16(acc, row, x)
     }
 }
 
+impl Packed for W16L {
+    const BYTES: usize = 2;
+    type Sum = i64;
+
+    #[inline(never)]
+    fn tail(acc: i64, row: &[u8], x: &[i16]) -> i64 {
+        tail16(acc, row, x)
+    }
+}
+
+/// `acc` plus the dot product of an `I16` row with `x`.
+#[inline(always)]
+fn tail16<A: Acc>(mut acc: A, row: &[u8], x: &[i16]) -> A {
+    for (w, &v) in row.as_chunks::<2>().0.iter().zip(x) {
+        acc = acc.mac(i32::from(i16::from_le_bytes(*w)) * i32::from(v));
+    }
+    acc
+}
+
 /// A block loop over `N` (1 or 2) rows of layout `W`.
-pub(super) trait Blocks<W, const N: usize> {
-    /// The rows' 32-bit (wrapping) dot products with `x`.
+pub(super) trait Blocks<W: Packed, const N: usize> {
+    /// The rows' (wrapping) dot products with `x`.
     ///
     /// # Safety
     ///
     /// `x.len()` is a non-zero multiple of [`BLOCK`], every row is
     /// `x.len() * W::BYTES` long, and `x` and every row start word-aligned.
-    unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [i32; N];
+    unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [W::Sum; N];
 }
 
 fn word_aligned<T>(s: &[T]) -> bool {
@@ -98,7 +117,10 @@ fn word_aligned<T>(s: &[T]) -> bool {
 /// [`Packed::tail`] over the rest. Not inlined: one copy per layout and row
 /// count keeps the firmware's `.text` in budget.
 #[inline(never)]
-fn pass<W: Packed, L: Blocks<W, N>, const N: usize>(rows: [&[u8]; N], x: &[i16]) -> [i32; N] {
+fn pass<W: Packed, L: Blocks<W, N>, const N: usize>(
+    rows: [&[u8]; N],
+    x: &[i16],
+) -> [W::Sum; N] {
     let n = x.len() / BLOCK * BLOCK;
     let mut heads: [&[u8]; N] = [&[]; N];
     let mut fits = n > 0 && word_aligned(x);
@@ -112,12 +134,12 @@ fn pass<W: Packed, L: Blocks<W, N>, const N: usize>(rows: [&[u8]; N], x: &[i16])
         // SAFETY: `head` is `n` inputs, a non-zero multiple of BLOCK, each
         // row head is `n * W::BYTES` bytes, and all start word-aligned.
         Some(head) if fits => (unsafe { L::run(heads, head) }, n),
-        _ => ([0; N], 0),
+        _ => ([W::Sum::ZERO; N], 0),
     };
     if done < x.len() {
         let rest = x.get(done..).unwrap_or(&[]);
         for (a, row) in acc.iter_mut().zip(rows) {
-            *a = a.wrapping_add(W::tail(row.get(done * W::BYTES..).unwrap_or(&[]), rest));
+            *a = W::tail(*a, row.get(done * W::BYTES..).unwrap_or(&[]), rest);
         }
     }
     acc
@@ -128,11 +150,11 @@ pub(super) struct Smlad<W, L>(PhantomData<(W, L)>);
 
 impl<W: Packed, L: Blocks<W, 1> + Blocks<W, 2>> Kernel for Smlad<W, L> {
     fn dot1(r: [&[u8]; 1], x: &[i16]) -> [i64; 1] {
-        pass::<W, L, 1>(r, x).map(i64::from)
+        pass::<W, L, 1>(r, x).map(Acc::widen)
     }
 
     fn dot2(r: [&[u8]; 2], x: &[i16]) -> [i64; 2] {
-        pass::<W, L, 2>(r, x).map(i64::from)
+        pass::<W, L, 2>(r, x).map(Acc::widen)
     }
 
     fn dot4(r: [&[u8]; 4], x: &[i16]) -> [i64; 4] {
@@ -145,5 +167,5 @@ impl<W: Packed, L: Blocks<W, 1> + Blocks<W, 2>> Kernel for Smlad<W, L> {
 fn quad<W: Packed, L: Blocks<W, 2>>(r: [&[u8]; 4], x: &[i16]) -> [i64; 4] {
     let [a, b] = pass::<W, L, 2>([r[0], r[1]], x);
     let [c, d] = pass::<W, L, 2>([r[2], r[3]], x);
-    [a, b, c, d].map(i64::from)
+    [a, b, c, d].map(Acc::widen)
 }

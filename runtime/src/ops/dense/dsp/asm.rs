@@ -11,7 +11,7 @@
 //! iteration, after one lone block when the count is odd (`lsrs` leaves
 //! the halved count's zero flag for `beq`; the block sets no flags).
 
-use super::{Blocks, BLOCK, W16, W8I};
+use super::{Blocks, BLOCK, W16, W16L, W8I};
 use core::arch::asm;
 
 /// The block loops of the target.
@@ -123,6 +123,45 @@ macro_rules! i16_block2 {
             "\n",
             i16_step!("r0", "r8"),
             i16_step!("r1", "r9"),
+        )
+    };
+}
+
+/// Four inputs of two `I16` rows into 64-bit accumulators `r0:r1` and
+/// `r2:r3`: one `LDRD` of inputs (`r4`, `r5`) shared by both rows, one of
+/// weights per row (`r12`, `lr`), two `SMLALD`s per row.
+macro_rules! i16l_step2 {
+    () => {
+        concat!(
+            "ldrd r4, r5, [r10], #8\n",
+            "ldrd r12, lr, [r8], #8\n",
+            "smlald r0, r1, r12, r4\n",
+            "smlald r0, r1, lr, r5\n",
+            "ldrd r12, lr, [r9], #8\n",
+            "smlald r2, r3, r12, r4\n",
+            "smlald r2, r3, lr, r5\n",
+        )
+    };
+}
+
+/// One block (16 inputs) of two `I16` rows, 64-bit accumulators.
+macro_rules! i16l_block2 {
+    () => {
+        concat!(i16l_step2!(), i16l_step2!(), i16l_step2!(), i16l_step2!())
+    };
+}
+
+/// Eight inputs (`r2..r5`) of one `I16` row into the 64-bit accumulator
+/// `r0:r1`.
+macro_rules! i16l_step1 {
+    () => {
+        concat!(
+            "ldrd r12, lr, [r8], #8\n",
+            "smlald r0, r1, r12, r2\n",
+            "smlald r0, r1, lr, r3\n",
+            "ldrd r12, lr, [r8], #8\n",
+            "smlald r0, r1, r12, r4\n",
+            "smlald r0, r1, lr, r5\n",
         )
     };
 }
@@ -253,5 +292,73 @@ impl Blocks<W16, 2> for Asm {
             );
         }
         [a0, a1]
+    }
+}
+
+/// A 64-bit accumulator from its two halves (`RdLo`, `RdHi` of `SMLALD`).
+fn wide(lo: u32, hi: u32) -> i64 {
+    ((u64::from(hi) << 32) | u64::from(lo)) as i64
+}
+
+impl Blocks<W16L, 1> for Asm {
+    unsafe fn run(rows: [&[u8]; 1], x: &[i16]) -> [i64; 1] {
+        let (lo, hi): (u32, u32);
+        // SAFETY: as for `I16` with 32-bit accumulators; `r0:r1` is the
+        // accumulator.
+        unsafe {
+            asm!(
+                "2:",
+                load_x!(),
+                i16l_step1!(),
+                load_x!(),
+                i16l_step1!(),
+                "subs r11, r11, #1",
+                "bne 2b",
+                inout("r0") 0u32 => lo,
+                inout("r1") 0u32 => hi,
+                inout("r8") rows[0].as_ptr() => _,
+                inout("r10") x.as_ptr() => _,
+                inout("r11") x.len() / BLOCK => _,
+                out("r2") _, out("r3") _, out("r4") _, out("r5") _,
+                out("r12") _, out("lr") _,
+                options(readonly, nostack),
+            );
+        }
+        [wide(lo, hi)]
+    }
+}
+
+impl Blocks<W16L, 2> for Asm {
+    unsafe fn run(rows: [&[u8]; 2], x: &[i16]) -> [i64; 2] {
+        let (lo0, hi0, lo1, hi1): (u32, u32, u32, u32);
+        // SAFETY: as for one row, for both rows; `r0:r1` and `r2:r3` are the
+        // accumulators, inputs come four at a time by `LDRD` (`r4`, `r5`).
+        unsafe {
+            asm!(
+                "lsrs r11, r11, #1",
+                "bcc 3f",
+                i16l_block2!(),
+                "3:",
+                "beq 5f",
+                "2:",
+                i16l_block2!(),
+                i16l_block2!(),
+                "subs r11, r11, #1",
+                "bne 2b",
+                "5:",
+                inout("r0") 0u32 => lo0,
+                inout("r1") 0u32 => hi0,
+                inout("r2") 0u32 => lo1,
+                inout("r3") 0u32 => hi1,
+                inout("r8") rows[0].as_ptr() => _,
+                inout("r9") rows[1].as_ptr() => _,
+                inout("r10") x.as_ptr() => _,
+                inout("r11") x.len() / BLOCK => _,
+                out("r4") _, out("r5") _,
+                out("r12") _, out("lr") _,
+                options(readonly, nostack),
+            );
+        }
+        [wide(lo0, hi0), wide(lo1, hi1)]
     }
 }
