@@ -109,7 +109,7 @@ pub fn boot(
             big => bail!(
                 "{} is {len} bytes, the MODEL region (memory.x) holds {room} bytes{}",
                 b.display(),
-                big.map(|(s, e)| format!(" and BIGMODEL {}", e - s))
+                big.map(|(s, e)| format!(", BIGMODEL {}", e - s))
                     .unwrap_or_default()
             ),
         };
@@ -156,6 +156,15 @@ pub fn boot(
     let run = qemu::run(elf_path, &loads, timeout)?;
     let log = log::decode(&elf.bytes, &run.stdout)?;
     Ok(Booted { run, log })
+}
+
+/// The region `boot` loads a blob of `len` bytes at: its name and size.
+fn model_region(elf: &ElfInfo, len: u64) -> (&'static str, u64) {
+    let model = elf.model.1 - elf.model.0;
+    match elf.bigmodel {
+        Some((start, end)) if len > model => ("BIGMODEL", end - start),
+        _ => ("MODEL", model),
+    }
 }
 
 /// Host reference outputs: (i16, f32) per frame, flattened, from the styled
@@ -390,7 +399,7 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
     Ok(TargetReport {
         model: args.model.clone(),
         blob_len: blob.len(),
-        model_region: elf.model.1 - elf.model.0,
+        model_region: model_region(&elf, blob.len() as u64),
         source: frames.source.clone(),
         frames: frames.len(),
         output_dim,

@@ -264,17 +264,20 @@ impl Legacy8 {
     }
 }
 
-/// The kernels of the two layouts the DSP kernels read, with 32-bit
-/// accumulators: `SMLAD` loops on Armv7E-M, the portable ones elsewhere.
+/// The kernels of the two layouts the DSP kernels read: `SMLAD` (int8,
+/// 32-bit accumulators) and `SMLALD` (int16, 64-bit) loops on Armv7E-M, the
+/// portable ones elsewhere. On the DSP target int16 rows with 32-bit
+/// accumulators take the `SMLALD` loops too: their sums are exact, and the
+/// loader's proof makes the exact sum the 32-bit one, so the bits are the
+/// same and one int16 kernel fits the firmware's `.text` budget.
 #[cfg(phasegate_dsp)]
 type Fast8 = dsp::Smlad<W8I, dsp::Asm>;
 #[cfg(not(phasegate_dsp))]
 type Fast8 = Portable<W8I, i32>;
 #[cfg(phasegate_dsp)]
-type Fast16 = dsp::Smlad<W16, dsp::Asm>;
+type Fast16 = dsp::Smlad<W16L, dsp::Asm>;
 #[cfg(not(phasegate_dsp))]
 type Fast16 = Portable<W16, i32>;
-/// `I16` with 64-bit accumulators (`SMLALD` loops on Armv7E-M).
 #[cfg(phasegate_dsp)]
 type Fast16L = dsp::Smlad<W16L, dsp::Asm>;
 #[cfg(not(phasegate_dsp))]
@@ -535,8 +538,9 @@ impl<'a> GatedOp<'a> for DenseLayer<'a> {
     /// One pass over `x` per output row; no scratch.
     fn run(&self, gate: &Gate, x: &[i16], _scratch: &mut [i16], y: &mut [i16]) -> Result<()> {
         let k = match (self.desc.weights, self.desc.acc) {
-            // 64-bit accumulators (rows too heavy for the 32-bit proof, rare)
-            // take one expert per pass: a quarter of the unrolled code.
+            // int8 with 64-bit accumulators (rows too heavy for the 32-bit
+            // proof, rare) takes one expert per pass: a quarter of the
+            // unrolled code.
             (WeightFormat::I8, AccWidth::I32) => Legacy8::dots(),
             (WeightFormat::I8, AccWidth::I64) => Dots::one::<Portable<W8, i64>>(),
             (WeightFormat::I8Interleaved, AccWidth::I32) => Dots::of::<Fast8>(),
