@@ -33,6 +33,8 @@ pub(super) const BLOCK: usize = 16;
 pub(super) trait Packed: Weight {
     /// Bytes of the weights of one input.
     const BYTES: usize;
+    /// The block loop takes any non-zero multiple of this many inputs.
+    const STEP: usize = BLOCK;
     /// `i32` (`SMLAD`) or `i64` (`SMLALD`).
     type Sum: Acc;
 
@@ -81,6 +83,8 @@ impl Packed for W16 {
 
 impl Packed for W16L {
     const BYTES: usize = 2;
+    /// Pairs: whole blocks, and before them single words of two inputs.
+    const STEP: usize = 2;
     type Sum = i64;
 
     #[inline(never)]
@@ -104,7 +108,7 @@ pub(super) trait Blocks<W: Packed, const N: usize> {
     ///
     /// # Safety
     ///
-    /// `x.len()` is a non-zero multiple of [`BLOCK`], every row is
+    /// `x.len()` is a non-zero multiple of [`Packed::STEP`], every row is
     /// `x.len() * W::BYTES` long, and `x` and every row start word-aligned.
     unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [W::Sum; N];
 }
@@ -121,7 +125,7 @@ fn pass<W: Packed, L: Blocks<W, N>, const N: usize>(
     rows: [&[u8]; N],
     x: &[i16],
 ) -> [W::Sum; N] {
-    let n = x.len() / BLOCK * BLOCK;
+    let n = x.len() / W::STEP * W::STEP;
     let mut heads: [&[u8]; N] = [&[]; N];
     let mut fits = n > 0 && word_aligned(x);
     for (head, row) in heads.iter_mut().zip(rows) {
@@ -131,7 +135,7 @@ fn pass<W: Packed, L: Blocks<W, N>, const N: usize>(
         }
     }
     let (mut acc, done) = match x.get(..n) {
-        // SAFETY: `head` is `n` inputs, a non-zero multiple of BLOCK, each
+        // SAFETY: `head` is `n` inputs, a non-zero multiple of STEP, each
         // row head is `n * W::BYTES` bytes, and all start word-aligned.
         Some(head) if fits => (unsafe { L::run(heads, head) }, n),
         _ => ([W::Sum::ZERO; N], 0),

@@ -303,10 +303,24 @@ fn wide(lo: u32, hi: u32) -> i64 {
 impl Blocks<W16L, 1> for Asm {
     unsafe fn run(rows: [&[u8]; 1], x: &[i16]) -> [i64; 1] {
         let (lo, hi): (u32, u32);
-        // SAFETY: as for `I16` with 32-bit accumulators; `r0:r1` is the
-        // accumulator.
+        // SAFETY: the caller's contract: `x.len() / 2 >= 1` pairs of inputs
+        // (4 bytes) and weights (4 bytes), word-aligned (`LDM`, `LDRD`);
+        // only those are read: `pairs mod 8` single pairs, then the blocks
+        // (`lsrs` by 3: the block count, zero flag when there is none).
+        // `r0:r1` is the accumulator.
         unsafe {
             asm!(
+                "1:",
+                "tst r11, #7",
+                "beq 4f",
+                "ldr r2, [r10], #4",
+                "ldr r12, [r8], #4",
+                "smlald r0, r1, r12, r2",
+                "sub r11, r11, #1",
+                "b 1b",
+                "4:",
+                "lsrs r11, r11, #3",
+                "beq 5f",
                 "2:",
                 load_x!(),
                 i16l_step1!(),
@@ -314,11 +328,12 @@ impl Blocks<W16L, 1> for Asm {
                 i16l_step1!(),
                 "subs r11, r11, #1",
                 "bne 2b",
+                "5:",
                 inout("r0") 0u32 => lo,
                 inout("r1") 0u32 => hi,
                 inout("r8") rows[0].as_ptr() => _,
                 inout("r10") x.as_ptr() => _,
-                inout("r11") x.len() / BLOCK => _,
+                inout("r11") x.len() / 2 => _,
                 out("r2") _, out("r3") _, out("r4") _, out("r5") _,
                 out("r12") _, out("lr") _,
                 options(readonly, nostack),
@@ -333,9 +348,22 @@ impl Blocks<W16L, 2> for Asm {
         let (lo0, hi0, lo1, hi1): (u32, u32, u32, u32);
         // SAFETY: as for one row, for both rows; `r0:r1` and `r2:r3` are the
         // accumulators, inputs come four at a time by `LDRD` (`r4`, `r5`).
+        // After the single pairs, `lsrs` by 4 leaves the halved block count,
+        // the odd block in the carry and the zero flag as in `I16`.
         unsafe {
             asm!(
-                "lsrs r11, r11, #1",
+                "1:",
+                "tst r11, #7",
+                "beq 4f",
+                "ldr r4, [r10], #4",
+                "ldr r12, [r8], #4",
+                "smlald r0, r1, r12, r4",
+                "ldr r12, [r9], #4",
+                "smlald r2, r3, r12, r4",
+                "sub r11, r11, #1",
+                "b 1b",
+                "4:",
+                "lsrs r11, r11, #4",
                 "bcc 3f",
                 i16l_block2!(),
                 "3:",
@@ -353,7 +381,7 @@ impl Blocks<W16L, 2> for Asm {
                 inout("r8") rows[0].as_ptr() => _,
                 inout("r9") rows[1].as_ptr() => _,
                 inout("r10") x.as_ptr() => _,
-                inout("r11") x.len() / BLOCK => _,
+                inout("r11") x.len() / 2 => _,
                 out("r4") _, out("r5") _,
                 out("r12") _, out("lr") _,
                 options(readonly, nostack),

@@ -157,9 +157,44 @@ impl<const N: usize> Blocks<W16, N> for Emulated {
     }
 }
 
+/// `LDR r, [p], #4` of a row: one little-endian word, advancing `at`.
+fn ldr(row: &[u8], at: &mut usize) -> u32 {
+    let w = u32::from_le_bytes(row[*at..*at + 4].try_into().unwrap());
+    *at += 4;
+    w
+}
+
+/// The `I16` loops with 64-bit accumulators: `pairs mod 8` single pairs of
+/// inputs (`LDR`, one `SMLALD` per row), then the whole blocks as in
+/// [`blocks`].
 impl<const N: usize> Blocks<W16L, N> for Emulated {
     unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [i64; N] {
-        blocks(rows, x, i16l_step)
+        assert!(
+            !x.is_empty() && x.len().is_multiple_of(2),
+            "contract: whole pairs"
+        );
+        let mut acc = [0i64; N];
+        let pairs = x.len() / 2 % 8;
+        let mut wp = [0usize; N];
+        for p in 0..pairs {
+            let xw = u32::from(x[2 * p] as u16) | (u32::from(x[2 * p + 1] as u16) << 16);
+            for ((a, row), at) in acc.iter_mut().zip(rows).zip(&mut wp) {
+                *a = smlald(ldr(row, at), xw, *a);
+            }
+        }
+        let done = 2 * pairs;
+        if done < x.len() {
+            let rest: [&[u8]; N] = core::array::from_fn(|k| &rows[k][4 * pairs..]);
+            let sums = blocks(rest, &x[done..], i16l_step);
+            for (a, s) in acc.iter_mut().zip(sums) {
+                *a = a.wrapping_add(s);
+            }
+        } else {
+            for (row, p) in rows.iter().zip(wp) {
+                assert_eq!(row.len(), p, "contract: the loop reads each row to its end");
+            }
+        }
+        acc
     }
 }
 
