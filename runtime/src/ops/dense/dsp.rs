@@ -35,6 +35,17 @@ pub(super) trait Packed: Weight {
     const BYTES: usize;
     /// The block loop takes any non-zero multiple of this many inputs.
     const STEP: usize = BLOCK;
+
+    /// How many of `len` inputs the block loop takes (the rest go to
+    /// [`Packed::tail`], which starts at a group boundary).
+    fn head(len: usize) -> usize {
+        len / Self::STEP * Self::STEP
+    }
+
+    /// Bytes of a row that the block loop reads for `n = head(len)` inputs.
+    fn head_bytes(n: usize) -> usize {
+        n * Self::BYTES
+    }
     /// `i32` (`SMLAD`) or `i64` (`SMLALD`).
     type Sum: Acc;
 
@@ -47,7 +58,24 @@ pub(super) trait Packed: Weight {
 
 impl Packed for W8I {
     const BYTES: usize = 1;
+    /// Pairs: a last half group, single groups, whole blocks.
+    const STEP: usize = 2;
     type Sum = i32;
+
+    /// An even width whole (a last half group meets the padding of its
+    /// group); an odd one up to its last whole group.
+    fn head(len: usize) -> usize {
+        if len.is_multiple_of(2) {
+            len
+        } else {
+            len / 4 * 4
+        }
+    }
+
+    /// Whole groups, the padding of a last half group included.
+    fn head_bytes(n: usize) -> usize {
+        n.next_multiple_of(4)
+    }
 
     /// Group by group: stored `w0 w2 w1 w3` meet `x0 x2 x1 x3`; in the
     /// last, partial group input `s` meets slot `position(s)` (padding
@@ -109,7 +137,8 @@ pub(super) trait Blocks<W: Packed, const N: usize> {
     /// # Safety
     ///
     /// `x.len()` is a non-zero multiple of [`Packed::STEP`], every row is
-    /// `x.len() * W::BYTES` long, and `x` and every row start word-aligned.
+    /// `W::head_bytes(x.len())` long, and `x` and every row start
+    /// word-aligned.
     unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [W::Sum; N];
 }
 
@@ -125,18 +154,18 @@ fn pass<W: Packed, L: Blocks<W, N>, const N: usize>(
     rows: [&[u8]; N],
     x: &[i16],
 ) -> [W::Sum; N] {
-    let n = x.len() / W::STEP * W::STEP;
+    let n = W::head(x.len());
     let mut heads: [&[u8]; N] = [&[]; N];
     let mut fits = n > 0 && word_aligned(x);
     for (head, row) in heads.iter_mut().zip(rows) {
-        match row.get(..n * W::BYTES) {
+        match row.get(..W::head_bytes(n)) {
             Some(h) if word_aligned(h) => *head = h,
             _ => fits = false,
         }
     }
     let (mut acc, done) = match x.get(..n) {
         // SAFETY: `head` is `n` inputs, a non-zero multiple of STEP, each
-        // row head is `n * W::BYTES` bytes, and all start word-aligned.
+        // row head is `W::head_bytes(n)` bytes, and all start word-aligned.
         Some(head) if fits => (unsafe { L::run(heads, head) }, n),
         _ => ([W::Sum::ZERO; N], 0),
     };

@@ -166,6 +166,64 @@ macro_rules! i16l_step1 {
     };
 }
 
+/// When the pair count `r11` is odd, the last pair of inputs (`r2`) against
+/// the low pair of its group's word in each row (`i8_half!`: `SXTB16`;
+/// slots 0 and 2 hold its two weights, slots 1 and 3 padding), read by
+/// index before the pointers move; `r11` becomes even.
+macro_rules! i8_last_half {
+    ($($half:ident ! ($($arg:tt)*)),*) => {
+        concat!(
+            "tst r11, #1\n",
+            "beq 6f\n",
+            "sub r11, r11, #1\n",
+            "ldr r2, [r10, r11, lsl #2]\n",
+            $($half!($($arg)*),)*
+            "6:\n",
+        )
+    };
+}
+
+/// The last half group of one row (see `i8_last_half!`).
+macro_rules! i8_half {
+    ($acc:literal, $ptr:literal) => {
+        concat!(
+            "ldr r12, [",
+            $ptr,
+            ", r11, lsl #1]\n",
+            "sxtb16 r12, r12\n",
+            "smlad ",
+            $acc,
+            ", r12, r2, ",
+            $acc,
+            "\n",
+        )
+    };
+}
+
+/// Four inputs (`r2`, `r3`) of one `I8Interleaved` row: one word of
+/// weights, split into its two pairs.
+macro_rules! i8_group {
+    ($acc:literal, $ptr:literal) => {
+        concat!(
+            "ldr r12, [",
+            $ptr,
+            "], #4\n",
+            "sxtb16 lr, r12\n",
+            "smlad ",
+            $acc,
+            ", lr, r2, ",
+            $acc,
+            "\n",
+            "sxtb16 r12, r12, ror #8\n",
+            "smlad ",
+            $acc,
+            ", r12, r3, ",
+            $acc,
+            "\n",
+        )
+    };
+}
+
 /// The next eight inputs into `r2..r5`.
 macro_rules! load_x {
     () => {
@@ -182,6 +240,18 @@ impl Blocks<W8I, 1> for Asm {
         // docs; the flags are clobbered (no `preserves_flags`).
         unsafe {
             asm!(
+                i8_last_half!(i8_half!("r0", "r8")),
+                "lsrs r11, r11, #1",
+                "1:",
+                "tst r11, #3",
+                "beq 4f",
+                "ldrd r2, r3, [r10], #8",
+                i8_group!("r0", "r8"),
+                "sub r11, r11, #1",
+                "b 1b",
+                "4:",
+                "lsrs r11, r11, #2",
+                "beq 5f",
                 "2:",
                 load_x!(),
                 i8_step!("r0", "r8", "r1"),
@@ -189,11 +259,12 @@ impl Blocks<W8I, 1> for Asm {
                 i8_step!("r0", "r8", "r1"),
                 "subs r11, r11, #1",
                 "bne 2b",
+                "5:",
                 inout("r0") a0,
                 out("r1") _,
                 inout("r8") rows[0].as_ptr() => _,
                 inout("r10") x.as_ptr() => _,
-                inout("r11") x.len() / BLOCK => _,
+                inout("r11") x.len() / 2 => _,
                 out("r2") _, out("r3") _, out("r4") _, out("r5") _,
                 out("r12") _, out("lr") _,
                 options(readonly, nostack),
@@ -211,7 +282,18 @@ impl Blocks<W8I, 2> for Asm {
         unsafe {
             asm!(
                 "push {{r6}}",
+                i8_last_half!(i8_half!("r0", "r8"), i8_half!("r1", "r9")),
                 "lsrs r11, r11, #1",
+                "1:",
+                "tst r11, #3",
+                "beq 4f",
+                "ldrd r2, r3, [r10], #8",
+                i8_group!("r0", "r8"),
+                i8_group!("r1", "r9"),
+                "sub r11, r11, #1",
+                "b 1b",
+                "4:",
+                "lsrs r11, r11, #3",
                 "bcc 3f",
                 i8_block2!(),
                 "3:",
@@ -228,7 +310,7 @@ impl Blocks<W8I, 2> for Asm {
                 inout("r8") rows[0].as_ptr() => _,
                 inout("r9") rows[1].as_ptr() => _,
                 inout("r10") x.as_ptr() => _,
-                inout("r11") x.len() / BLOCK => _,
+                inout("r11") x.len() / 2 => _,
                 out("r2") _, out("r3") _, out("r4") _, out("r5") _,
                 out("r12") _, out("lr") _,
             );

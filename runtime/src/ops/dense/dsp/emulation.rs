@@ -145,9 +145,49 @@ fn blocks<A: Acc, const N: usize>(
     acc
 }
 
+/// The `I8Interleaved` loops: for an odd pair count the last pair against
+/// the low pair of its group's word (`i8_last_half!`, by index), then
+/// `groups mod 4` single groups (`i8_group!`), then the whole blocks as in
+/// [`blocks`].
 impl<const N: usize> Blocks<W8I, N> for Emulated {
     unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [i32; N] {
-        blocks(rows, x, i8_step)
+        assert!(
+            !x.is_empty() && x.len().is_multiple_of(2),
+            "contract: whole pairs"
+        );
+        let word = |at: usize| u32::from(x[at] as u16) | (u32::from(x[at + 1] as u16) << 16);
+        let mut acc = [0i32; N];
+        let mut pairs = x.len() / 2;
+        if pairs % 2 == 1 {
+            pairs -= 1;
+            let xw = word(2 * pairs);
+            for (a, row) in acc.iter_mut().zip(rows) {
+                let mut at = 2 * pairs;
+                *a = smlad(sxtb16(ldr(row, &mut at), 0), xw, *a);
+            }
+        }
+        let groups = pairs / 2;
+        let mut wp = [0usize; N];
+        for g in 0..groups % 4 {
+            let (x01, x23) = (word(4 * g), word(4 * g + 2));
+            for ((a, row), at) in acc.iter_mut().zip(rows).zip(&mut wp) {
+                let w = ldr(row, at);
+                *a = smlad(sxtb16(w, 0), x01, *a);
+                *a = smlad(sxtb16(w, 8), x23, *a);
+            }
+        }
+        let done = 4 * (groups % 4);
+        if groups >= 4 {
+            let rest: [&[u8]; N] = core::array::from_fn(|k| &rows[k][done..4 * groups]);
+            let sums = blocks(rest, &x[done..4 * groups], i8_step);
+            for (a, s) in acc.iter_mut().zip(sums) {
+                *a = a.wrapping_add(s);
+            }
+        }
+        for row in rows {
+            assert_eq!(row.len(), x.len().next_multiple_of(4), "contract: the loop reads each row to its end");
+        }
+        acc
     }
 }
 
