@@ -382,7 +382,7 @@ impl<'a> DenseLayer<'a> {
                         total.wrapping_add(acc.wrapping_add(i64::from(b)).wrapping_mul(g))
                     } else {
                         let b = bias_at(self.bias, bias_width, at).unwrap_or(0);
-                        total.saturating_add(acc.saturating_add(b).saturating_mul(g))
+                        blend_saturating(total, acc, b, g)
                     };
                 }
             }
@@ -451,13 +451,21 @@ impl DenseLayer<'_> {
                 }
             } else {
                 for (a, (b, g)) in terms {
-                    total = total.saturating_add(a.saturating_add(b).saturating_mul(g));
+                    total = blend_saturating(total, a, b, g);
                 }
             }
             *yi = finish_row(total, rec, self.desc.activation);
         }
         Ok(())
     }
+}
+
+/// `total + g (acc + b)` with the documented i64 saturations: the blend's
+/// step where it is not proved exact. Not inlined: one copy serves every
+/// row loop (`.text`).
+#[inline(never)]
+fn blend_saturating(total: i64, acc: i64, b: i64, g: i64) -> i64 {
+    total.saturating_add(acc.saturating_add(b).saturating_mul(g))
 }
 
 /// A bias of the blob's width (little-endian i32 or i64).
