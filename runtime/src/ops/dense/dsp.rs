@@ -195,9 +195,21 @@ impl<W: Packed, L: Blocks<W, 1> + Blocks<W, 2>> Kernel for Smlad<W, L> {
     }
 }
 
-/// Four rows: two passes of two, in one call.
+/// Four rows: two passes of two, in one call. When the block loop takes
+/// the whole width and every row and `x` are word-aligned (the usual case:
+/// a cubic gate's layer), the two loops run straight after one check of
+/// all four rows; otherwise two [`pass`]es.
 #[inline(never)]
 fn quad<W: Packed, L: Blocks<W, 2>>(r: [&[u8]; 4], x: &[i16]) -> [i64; 4] {
+    let whole = W::head(x.len()) == x.len() && !x.is_empty() && word_aligned(x);
+    let bytes = W::head_bytes(x.len());
+    if whole && r.iter().all(|row| row.len() == bytes && word_aligned(row)) {
+        // SAFETY: `x` is a non-zero multiple of STEP inputs (`head` takes it
+        // whole), each row is `W::head_bytes(x.len())` bytes, and all start
+        // word-aligned.
+        let ([a, b], [c, d]) = unsafe { (L::run([r[0], r[1]], x), L::run([r[2], r[3]], x)) };
+        return [a, b, c, d].map(Acc::widen);
+    }
     let [a, b] = pass::<W, L, 2>([r[0], r[1]], x);
     let [c, d] = pass::<W, L, 2>([r[2], r[3]], x);
     [a, b, c, d].map(Acc::widen)

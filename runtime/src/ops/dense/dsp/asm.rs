@@ -275,6 +275,8 @@ impl Blocks<W8I, 1> for Asm {
 }
 
 impl Blocks<W8I, 2> for Asm {
+    // Not inlined: `pass` and `quad` share one copy (`.text`).
+    #[inline(never)]
     unsafe fn run(rows: [&[u8]; 2], x: &[i16]) -> [i32; 2] {
         let (mut a0, mut a1) = (0i32, 0i32);
         // SAFETY: as for one row, for both rows; `r6` is pushed and popped
@@ -346,6 +348,8 @@ impl Blocks<W16, 1> for Asm {
 }
 
 impl Blocks<W16, 2> for Asm {
+    // Not inlined: `pass` and `quad` share one copy (`.text`).
+    #[inline(never)]
     unsafe fn run(rows: [&[u8]; 2], x: &[i16]) -> [i32; 2] {
         let (mut a0, mut a1) = (0i32, 0i32);
         // SAFETY: as for one row, for both rows.
@@ -426,6 +430,8 @@ impl Blocks<W16L, 1> for Asm {
 }
 
 impl Blocks<W16L, 2> for Asm {
+    // Not inlined: `pass` and `quad` share one copy (`.text`).
+    #[inline(never)]
     unsafe fn run(rows: [&[u8]; 2], x: &[i16]) -> [i64; 2] {
         let (lo0, hi0, lo1, hi1): (u32, u32, u32, u32);
         // SAFETY: as for one row, for both rows; `r0:r1` and `r2:r3` are the
