@@ -16,10 +16,10 @@
 //!
 //! Re-measured after the int16 `SMLALD` kernels and the even-width int8
 //! loops (`docs/fixed-point.md`, "Dense kernels"), inference medians:
-//! `tests/golden/default` 281,360 and real PFNN int8 (both interleaved)
-//! 3,544,080, which fix [`PER_MAC_I8_INTERLEAVED`] and
-//! [`PER_ROW_I8_INTERLEAVED`]; `tests/golden/dense-int16` 272,000 and the
-//! real PFNN int16 (cubic, run from the BIGMODEL region) 2,868,120, which
+//! `tests/golden/default` 260,760 and real PFNN int8 (both interleaved)
+//! 3,470,680, which fix [`PER_MAC_I8_INTERLEAVED`] and
+//! [`PER_ROW_I8_INTERLEAVED`]; `tests/golden/dense-int16` 253,600 and the
+//! real PFNN int16 (cubic, run from the BIGMODEL region) 2,800,880, which
 //! fix [`PER_MAC_I16`] and [`PER_ROW_I16`] (two shapes, two unknowns each).
 //! The plain int8 layout keeps [`PER_MAC_I8`] and [`PER_ROW`] (the default
 //! model's plain-layout int8 blob: 436,080 after the first DSP kernels).
@@ -62,15 +62,15 @@ use serde::Serialize;
 /// interleaved layout (the DSP kernel on the target).
 pub const PER_MAC_I8_INTERLEAVED: u64 = 1_226;
 /// Milli-instructions per output row of an interleaved int8 layer.
-pub const PER_ROW_I8_INTERLEAVED: u64 = 463_600;
+pub const PER_ROW_I8_INTERLEAVED: u64 = 408_700;
 /// Milli-instructions per multiply-accumulate of an int8 layer in the
 /// plain layout (blobs of older exporters, rows under 16 inputs).
 pub const PER_MAC_I8: u64 = 2_347;
 /// Milli-instructions per multiply-accumulate of an int16 layer (the
 /// `SMLALD` kernel on the target).
-pub const PER_MAC_I16: u64 = 916;
+pub const PER_MAC_I16: u64 = 915;
 /// Milli-instructions per output row of an int16 layer.
-pub const PER_ROW_I16: u64 = 511_100;
+pub const PER_ROW_I16: u64 = 462_300;
 /// Milli-instructions per output row of a layer (bias blend,
 /// requantisation, activation).
 pub const PER_ROW: u64 = 614_000;
@@ -161,10 +161,10 @@ mod tests {
         for (case, measured) in [
             // Whole-frame medians of `host-sim target` after the int16
             // SMLALD kernels and the even-width int8 loops.
-            ("default", 319_680u64),
-            ("dense-int16", 310_280),
-            ("softmax-graph", 139_880),
-            ("cp-diagonal", 64_040),
+            ("default", 299_040u64),
+            ("dense-int16", 291_880),
+            ("softmax-graph", 134_000),
+            ("cp-diagonal", 63_960),
         ] {
             let b = golden(case);
             let e = estimate_instructions(&Model::from_bytes(&b).unwrap());
