@@ -442,7 +442,12 @@ impl DenseLayer<'_> {
             };
             let [a0, a1, a2, a3] = four([r0, r1, r2, r3], x);
             let b = [c0, c1, c2, c3].map(bias_value);
-            let terms = [(a0, (b[0], g[0])), (a1, (b[1], g[1])), (a2, (b[2], g[2])), (a3, (b[3], g[3]))];
+            let terms = [
+                (a0, (b[0], g[0])),
+                (a1, (b[1], g[1])),
+                (a2, (b[2], g[2])),
+                (a3, (b[3], g[3])),
+            ];
             let mut total = 0i64;
             if BW == 4 || b.iter().all(|b| b.unsigned_abs() <= limit) {
                 // Gate order, wrapping: exact here.

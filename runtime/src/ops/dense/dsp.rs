@@ -150,10 +150,7 @@ fn word_aligned<T>(s: &[T]) -> bool {
 /// [`Packed::tail`] over the rest. Not inlined: one copy per layout and row
 /// count keeps the firmware's `.text` in budget.
 #[inline(never)]
-fn pass<W: Packed, L: Blocks<W, N>, const N: usize>(
-    rows: [&[u8]; N],
-    x: &[i16],
-) -> [W::Sum; N] {
+fn pass<W: Packed, L: Blocks<W, N>, const N: usize>(rows: [&[u8]; N], x: &[i16]) -> [W::Sum; N] {
     let n = W::head(x.len());
     let mut heads: [&[u8]; N] = [&[]; N];
     let mut fits = n > 0 && word_aligned(x);

@@ -185,7 +185,11 @@ impl<const N: usize> Blocks<W8I, N> for Emulated {
             }
         }
         for row in rows {
-            assert_eq!(row.len(), x.len().next_multiple_of(4), "contract: the loop reads each row to its end");
+            assert_eq!(
+                row.len(),
+                x.len().next_multiple_of(4),
+                "contract: the loop reads each row to its end"
+            );
         }
         acc
     }
