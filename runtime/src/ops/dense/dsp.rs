@@ -1,18 +1,21 @@
 //! The Armv7E-M DSP kernels of the two layouts whose rows are words of
 //! activation-ordered pairs: `I16` (two weights per half-word pair, as
 //! stored) and `I8Interleaved` (`SXTB16` and `SXTB16 ROR 8` of a word give
-//! `(w0, w1)` and `(w2, w3)`). One `SMLAD` is two MACs.
+//! `(w0, w1)` and `(w2, w3)`). One `SMLAD` (32-bit accumulator) or `SMLALD`
+//! (64-bit) is two MACs.
 //!
 //! A pass takes one or two experts' rows (two accumulators, two weight
-//! streams and eight inputs in registers fill the thirteen registers the
-//! loop can use; four experts take two passes over `x`). The block loop runs
-//! over whole blocks of [`BLOCK`] inputs when `x` and every row start
-//! word-aligned (`LDM`/`LDRD` fault otherwise); the rest of the row, or the
-//! whole row when something is misaligned, goes through the portable
-//! kernel. The 32-bit sums are exact modulo 2^32 whatever the order, so the
-//! result is the portable kernel's bit for bit (`emulation.rs` proves the
-//! algorithm on the host, `firmware/src/bin/kernel-check.rs` the assembly
-//! under QEMU).
+//! streams and the inputs in registers fill the registers the loop can
+//! use; four experts take two passes over `x`, after one check of all four
+//! rows in [`quad`]). The block loop takes the first [`Packed::head`]
+//! inputs (every even width for `I8Interleaved` and for `I16` with 64-bit
+//! accumulators, whole blocks of [`BLOCK`] otherwise) when `x` and every
+//! row start word-aligned (`LDM`/`LDRD` fault otherwise); the rest of the
+//! row, or the whole row when something is misaligned, goes through the
+//! portable [`Packed::tail`]. The sums are exact modulo 2^32 (2^64)
+//! whatever the order, so the result is the portable kernel's bit for bit
+//! (`emulation.rs` proves the algorithm on the host,
+//! `firmware/src/bin/kernel-check.rs` the assembly under QEMU).
 
 use super::{Acc, Kernel, Weight, W16, W16L, W8I};
 use core::marker::PhantomData;

@@ -1,15 +1,21 @@
 //! The block loops in Thumb-2 assembly. Registers are fixed because `LDM`
 //! needs its list in ascending order: `r2..r5` eight inputs (`LDM`), `r12`,
 //! `lr` two weight words (`LDRD`), `r0`, `r1` the accumulators, `r8`, `r9`
-//! the weight pointers, `r10` the input pointer, `r11` the block count. A
+//! the weight pointers, `r10` the input pointer, `r11` the count. A
 //! two-row `I8Interleaved` loop needs a thirteenth register for the second
 //! half of a word: `r6`, which Rust reserves for LLVM's base pointer, so the
 //! loop saves and restores it on the stack and never names it as an operand.
+//! The two-row `SMLALD` loop (`I16`, 64-bit accumulators) keeps them in
+//! `r0:r1` and `r2:r3` and reads four inputs at a time into `r4`, `r5`.
 //! Instruction counts per block of 16 inputs: `I8Interleaved` 2 rows 38
 //! (32 MACs) plus the loop's 2 per two blocks, 1 row 22 (loop included);
-//! `I16` 2 rows 26 plus 1, 1 row 16. The two-row loops run two blocks per
-//! iteration, after one lone block when the count is odd (`lsrs` leaves
-//! the halved count's zero flag for `beq`; the block sets no flags).
+//! `I16` 2 rows 26 (`SMLAD`) or 28 (`SMLALD`) plus 1, 1 row 16. The two-row
+//! loops run two blocks per iteration, after one lone block when the count
+//! is odd (`lsrs` leaves the halved count's zero flag for `beq`; the block
+//! sets no flags). The `I8Interleaved` and `SMLALD` loops count pairs of
+//! inputs in `r11` and take the odd ones before the blocks: a last half
+//! group and single groups of four (`I8Interleaved`), single pairs
+//! (`SMLALD`).
 
 use super::{Blocks, BLOCK, W16, W16L, W8I};
 use core::arch::asm;
