@@ -14,14 +14,15 @@
 //! All constants are here, in one place, so a faster kernel is one edit
 //! (and a re-run of the commands below). They are in milli-instructions.
 //!
-//! Re-measured after the DSP kernels landed (interleaved int8 layout,
-//! `docs/fixed-point.md`), inference medians: `tests/golden/default`
-//! (now interleaved) 281,520; real PFNN int8 (interleaved) 3,639,600;
-//! `tests/golden/dense-int16` 757,640; the default model's plain-layout
-//! int8 blob 436,080. The two interleaved shapes fix
-//! [`PER_MAC_I8_INTERLEAVED`] and [`PER_ROW_I8_INTERLEAVED`]; the plain
-//! int8 and the int16 blob each fix their per-MAC constant with
-//! [`PER_ROW`] kept (one blob each).
+//! Re-measured after the int16 `SMLALD` kernels and the even-width int8
+//! loops (`docs/fixed-point.md`, "Dense kernels"), inference medians:
+//! `tests/golden/default` 260,760 and real PFNN int8 (both interleaved)
+//! 3,470,680, which fix [`PER_MAC_I8_INTERLEAVED`] and
+//! [`PER_ROW_I8_INTERLEAVED`]; `tests/golden/dense-int16` 253,600 and the
+//! real PFNN int16 (cubic, run from the BIGMODEL region) 2,800,880, which
+//! fix [`PER_MAC_I16`] and [`PER_ROW_I16`] (two shapes, two unknowns each).
+//! The plain int8 layout keeps [`PER_MAC_I8`] and [`PER_ROW`] (the default
+//! model's plain-layout int8 blob: 436,080 after the first DSP kernels).
 //!
 //! First measured on 2026-11-30 on the kernels of commit 79f31fa, whole-frame
 //! medians of `host-sim target --model <blob>` (64 golden or 16 generated
@@ -59,14 +60,17 @@ use serde::Serialize;
 
 /// Milli-instructions per multiply-accumulate of an int8 layer in the
 /// interleaved layout (the DSP kernel on the target).
-pub const PER_MAC_I8_INTERLEAVED: u64 = 1_273;
+pub const PER_MAC_I8_INTERLEAVED: u64 = 1_226;
 /// Milli-instructions per output row of an interleaved int8 layer.
-pub const PER_ROW_I8_INTERLEAVED: u64 = 452_000;
+pub const PER_ROW_I8_INTERLEAVED: u64 = 408_700;
 /// Milli-instructions per multiply-accumulate of an int8 layer in the
 /// plain layout (blobs of older exporters, rows under 16 inputs).
 pub const PER_MAC_I8: u64 = 2_347;
-/// Milli-instructions per multiply-accumulate of an int16 layer.
-pub const PER_MAC_I16: u64 = 6_015;
+/// Milli-instructions per multiply-accumulate of an int16 layer (the
+/// `SMLALD` kernel on the target).
+pub const PER_MAC_I16: u64 = 915;
+/// Milli-instructions per output row of an int16 layer.
+pub const PER_ROW_I16: u64 = 462_300;
 /// Milli-instructions per output row of a layer (bias blend,
 /// requantisation, activation).
 pub const PER_ROW: u64 = 614_000;
@@ -82,7 +86,7 @@ pub const TOLERANCE_PERCENT: u64 = 15;
 fn per_mac_and_row(d: &LayerDesc) -> (u64, u64) {
     match d.weights {
         WeightFormat::I8 => (PER_MAC_I8, PER_ROW),
-        WeightFormat::I16 => (PER_MAC_I16, PER_ROW),
+        WeightFormat::I16 => (PER_MAC_I16, PER_ROW_I16),
         WeightFormat::I8Interleaved => (PER_MAC_I8_INTERLEAVED, PER_ROW_I8_INTERLEAVED),
     }
 }
@@ -155,12 +159,12 @@ mod tests {
     #[test]
     fn estimates_match_the_recorded_measurements() {
         for (case, measured) in [
-            // Whole-frame medians of `host-sim target` after the DSP
-            // kernels (default and softmax-graph now interleaved int8).
-            ("default", 319_800u64),
-            ("dense-int16", 795_960),
-            ("softmax-graph", 146_800),
-            ("cp-diagonal", 64_040),
+            // Whole-frame medians of `host-sim target` after the int16
+            // SMLALD kernels and the even-width int8 loops.
+            ("default", 299_040u64),
+            ("dense-int16", 291_880),
+            ("softmax-graph", 134_000),
+            ("cp-diagonal", 63_960),
         ] {
             let b = golden(case);
             let e = estimate_instructions(&Model::from_bytes(&b).unwrap());

@@ -33,7 +33,7 @@
 
 mod measure;
 mod region;
-use region::region;
+use region::{model_region, region};
 #[cfg(feature = "controller")]
 mod status_pin;
 // The wire format, shared with host-sim.
@@ -171,6 +171,8 @@ extern "C" {
     static _phasegate_styles_end: u8;
     static _phasegate_hostio_start: u8;
     static _phasegate_hostio_end: u8;
+    static _phasegate_bigmodel_start: u8;
+    static _phasegate_bigmodel_end: u8;
 }
 
 fn exit(code: i32) -> ! {
@@ -196,14 +198,20 @@ fn main() -> ! {
         calib_ticks
     );
 
-    // SAFETY: the MODEL, STYLES and HOSTIO regions are reserved in
-    // memory.x, filled by the loader before reset and never written by the
-    // firmware.
+    // SAFETY: the MODEL, BIGMODEL, STYLES and HOSTIO regions are reserved
+    // in memory.x, filled by the loader before reset and never written by
+    // the firmware.
     let (model_region, styles_region, hostio) = unsafe {
         (
-            region(
-                &raw const _phasegate_model_start,
-                &raw const _phasegate_model_end,
+            model_region(
+                region(
+                    &raw const _phasegate_model_start,
+                    &raw const _phasegate_model_end,
+                ),
+                region(
+                    &raw const _phasegate_bigmodel_start,
+                    &raw const _phasegate_bigmodel_end,
+                ),
             ),
             region(
                 &raw const _phasegate_styles_start,

@@ -16,3 +16,15 @@ pub unsafe fn region(start: *const u8, end: *const u8) -> &'static [u8] {
         )
     }
 }
+
+/// The region that holds the model blob: `model` (MODEL), unless it does
+/// not start with the blob magic and `big` (BIGMODEL, memory.x) does.
+#[allow(dead_code, reason = "the inference core reads MODEL only")]
+pub fn model_region(model: &'static [u8], big: &'static [u8]) -> &'static [u8] {
+    let magic = &phasegate::blob::MAGIC[..];
+    if !model.starts_with(magic) && big.starts_with(magic) {
+        big
+    } else {
+        model
+    }
+}

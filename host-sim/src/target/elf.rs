@@ -18,6 +18,9 @@ pub struct ElfInfo {
     pub styles: (u64, u64),
     /// HOSTIO region `[start, end)` (memory.x).
     pub hostio: (u64, u64),
+    /// BIGMODEL region `[start, end)` (memory.x): blobs too large for
+    /// MODEL; `None` in firmwares linked before it existed.
+    pub bigmodel: Option<(u64, u64)>,
     /// The ELF's bytes (defmt reads its string table from them).
     pub bytes: Vec<u8>,
 }
@@ -60,11 +63,15 @@ impl ElfInfo {
             symbol("_phasegate_hostio_start")?,
             symbol("_phasegate_hostio_end")?,
         );
+        let bigmodel = symbol("_phasegate_bigmodel_start")
+            .and_then(|s| Ok((s, symbol("_phasegate_bigmodel_end")?)))
+            .ok();
         Ok(ElfInfo {
             sections,
             model,
             styles,
             hostio,
+            bigmodel,
             bytes,
         })
     }

@@ -7,7 +7,8 @@
 //! use, and the firmware's decoded defmt log.
 //!
 //! How the pieces talk (see `docs/firmware.md`):
-//! - the blob goes to the MODEL region, the style blobs (packed into one
+//! - the blob goes to the MODEL region (BIGMODEL, in PSRAM, when it does not
+//!   fit), the style blobs (packed into one
 //!   image, [`styles::pack_styles`]) to STYLES, the input image to HOSTIO,
 //!   all with `-device loader,...,force-raw=on`; their addresses come from
 //!   the ELF's `_phasegate_*` symbols, which memory.x defines;

@@ -161,8 +161,9 @@ pub struct TargetReport {
     pub model: PathBuf,
     /// Blob size, bytes.
     pub blob_len: usize,
-    /// Size of the MODEL region, bytes.
-    pub model_region: u64,
+    /// The region the blob was loaded at (`MODEL`, or `BIGMODEL` for a blob
+    /// too large for it) and its size, bytes.
+    pub model_region: (&'static str, u64),
     /// Where the frames came from.
     pub source: String,
     /// Frames run.
@@ -278,10 +279,11 @@ impl TargetReport {
         }
         let _ = writeln!(
             s,
-            "model: {} ({} B of the {} KiB MODEL region, {} B activation RAM)",
+            "model: {} ({} B of the {} KiB {} region, {} B activation RAM)",
             self.model.display(),
             self.blob_len,
-            self.model_region / 1024,
+            self.model_region.1 / 1024,
+            self.model_region.0,
             self.model_ram_bytes
         );
         for (i, st) in self.styles.iter().enumerate() {

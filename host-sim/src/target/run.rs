@@ -79,7 +79,8 @@ impl Booted {
     }
 }
 
-/// Boots the firmware `elf` with `blob` (if any) at MODEL, the STYLES image
+/// Boots the firmware `elf` with `blob` (if any) at MODEL (at BIGMODEL when
+/// it does not fit MODEL), the STYLES image
 /// `styles` (if any) at STYLES and the input image `image` (if any) at
 /// HOSTIO; decodes the log. Does not judge the exit code.
 pub fn boot(
@@ -113,14 +114,21 @@ pub fn boot_with(
             .with_context(|| format!("cannot read {}", b.display()))?
             .len();
         let room = elf.model.1 - elf.model.0;
-        ensure!(
-            len <= room,
-            "{} is {len} bytes, the MODEL region (memory.x) holds {room} bytes",
-            b.display()
-        );
+        // MODEL, or BIGMODEL for a blob too large for it (the firmware
+        // looks there when MODEL holds no blob).
+        let addr = match elf.bigmodel {
+            _ if len <= room => elf.model.0,
+            Some((start, end)) if len <= end - start => start,
+            big => bail!(
+                "{} is {len} bytes, the MODEL region (memory.x) holds {room} bytes{}",
+                b.display(),
+                big.map(|(s, e)| format!(", BIGMODEL {}", e - s))
+                    .unwrap_or_default()
+            ),
+        };
         loads.push(qemu::Load {
             file: b.to_path_buf(),
-            addr: elf.model.0,
+            addr,
         });
     }
     // The images host-sim writes: what, its file name, its region, and what
@@ -161,6 +169,15 @@ pub fn boot_with(
     let run = qemu::run_with(elf_path, &loads, timeout, extra)?;
     let log = log::decode(&elf.bytes, &run.stdout)?;
     Ok(Booted { run, log })
+}
+
+/// The region `boot` loads a blob of `len` bytes at: its name and size.
+fn model_region(elf: &ElfInfo, len: u64) -> (&'static str, u64) {
+    let model = elf.model.1 - elf.model.0;
+    match elf.bigmodel {
+        Some((start, end)) if len > model => ("BIGMODEL", end - start),
+        _ => ("MODEL", model),
+    }
 }
 
 /// Host reference outputs: (i16, f32) per frame, flattened, from the styled
@@ -420,7 +437,7 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
     Ok(TargetReport {
         model: args.model.clone(),
         blob_len: blob.len(),
-        model_region: elf.model.1 - elf.model.0,
+        model_region: model_region(&elf, blob.len() as u64),
         source: frames.source.clone(),
         frames: frames.len(),
         output_dim,

@@ -327,7 +327,7 @@ fn budgets_bite() {
     let mut r = TargetReport {
         model: PathBuf::new(),
         blob_len: 0,
-        model_region: 0,
+        model_region: ("MODEL", 0),
         source: String::new(),
         frames: 1,
         output_dim: 1,

@@ -49,6 +49,9 @@ struct W8;
 struct W8I;
 /// `WeightFormat::I16`.
 struct W16;
+/// `WeightFormat::I16` read by the kernels with 64-bit accumulators (the
+/// same rows; a separate name selects the `SMLALD` loops).
+struct W16L;
 
 #[inline(always)]
 fn plain(x: &[i16]) -> impl Iterator<Item = i32> + '_ {
@@ -88,6 +91,17 @@ impl Weight for W16 {
             .0
             .iter()
             .map(|c| i32::from(i16::from_le_bytes(*c)))
+    }
+    #[inline(always)]
+    fn xs(x: &[i16]) -> impl Iterator<Item = i32> + '_ {
+        plain(x)
+    }
+}
+
+impl Weight for W16L {
+    #[inline(always)]
+    fn row(bytes: &[u8]) -> impl Iterator<Item = i32> + '_ {
+        W16::row(bytes)
     }
     #[inline(always)]
     fn xs(x: &[i16]) -> impl Iterator<Item = i32> + '_ {
@@ -250,16 +264,24 @@ impl Legacy8 {
     }
 }
 
-/// The kernels of the two layouts the DSP kernels read, with 32-bit
-/// accumulators: `SMLAD` loops on Armv7E-M, the portable ones elsewhere.
+/// The kernels of the two layouts the DSP kernels read: `SMLAD` (int8,
+/// 32-bit accumulators) and `SMLALD` (int16, 64-bit) loops on Armv7E-M, the
+/// portable ones elsewhere. On the DSP target int16 rows with 32-bit
+/// accumulators take the `SMLALD` loops too: their sums are exact, and the
+/// loader's proof makes the exact sum the 32-bit one, so the bits are the
+/// same and one int16 kernel fits the firmware's `.text` budget.
 #[cfg(phasegate_dsp)]
 type Fast8 = dsp::Smlad<W8I, dsp::Asm>;
 #[cfg(not(phasegate_dsp))]
 type Fast8 = Portable<W8I, i32>;
 #[cfg(phasegate_dsp)]
-type Fast16 = dsp::Smlad<W16, dsp::Asm>;
+type Fast16 = dsp::Smlad<W16L, dsp::Asm>;
 #[cfg(not(phasegate_dsp))]
 type Fast16 = Portable<W16, i32>;
+#[cfg(phasegate_dsp)]
+type Fast16L = dsp::Smlad<W16L, dsp::Asm>;
+#[cfg(not(phasegate_dsp))]
+type Fast16L = Portable<W16L, i64>;
 
 impl<'a> DenseLayer<'a> {
     fn row_bytes(&self) -> usize {
@@ -297,17 +319,28 @@ impl<'a> DenseLayer<'a> {
         // below 2^63 in magnitude, so none of its saturations can act and
         // plain i64 arithmetic gives the same bits, without the M4's costly
         // overflow checks.
-        let exact = self.desc.acc == AccWidth::I32
-            && coefs.iter().map(|g| g.unsigned_abs()).sum::<u64>() < 1 << 31;
+        let sum_g = coefs.iter().map(|g| g.unsigned_abs()).sum::<u64>();
+        let exact = self.desc.acc == AccWidth::I32 && sum_g < 1 << 31;
         let bias_width = self.desc.acc.bytes();
         let bias32 = self.bias.as_chunks::<4>().0;
         let records = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
-        if let (true, 4, Some(four)) = (exact, n, k.four) {
+        if let (4, Some(four)) = (n, k.four) {
             let active = |s: usize| {
                 let e = experts.get(s).copied().unwrap_or(0);
                 (e, coefs.get(s).copied().unwrap_or(0))
             };
-            return self.run_four(four, [0, 1, 2, 3].map(active), x, y);
+            let active = [0, 1, 2, 3].map(active);
+            if exact {
+                return self.run_four::<4>(four, active, u64::MAX, x, y);
+            }
+            if self.desc.acc == AccWidth::I64 {
+                // `|acc| <= in_dim * 2^15 * 2^15`: a row whose biases are
+                // all within `limit` has `|acc + b| <= i64::MAX / sum |g|`,
+                // so no term or partial sum of its blend saturates.
+                let acc_bound = u64::from(self.desc.in_dim) << 30;
+                let limit = (i64::MAX as u64 / sum_g.max(1)).saturating_sub(acc_bound);
+                return self.run_four::<8>(four, active, limit, x, y);
+            }
         }
         for (i, (yi, rec)) in y.iter_mut().zip(records).enumerate() {
             let mut total = 0i64;
@@ -349,7 +382,7 @@ impl<'a> DenseLayer<'a> {
                         total.wrapping_add(acc.wrapping_add(i64::from(b)).wrapping_mul(g))
                     } else {
                         let b = bias_at(self.bias, bias_width, at).unwrap_or(0);
-                        total.saturating_add(acc.saturating_add(b).saturating_mul(g))
+                        blend_saturating(total, acc, b, g)
                     };
                 }
             }
@@ -360,29 +393,34 @@ impl<'a> DenseLayer<'a> {
 }
 
 impl DenseLayer<'_> {
-    /// `run_with` for exactly four experts and an exact blend (the cubic
-    /// phase gate's case): the same arithmetic, with each expert's rows and
-    /// biases walked in step instead of indexed per row.
-    fn run_four(
+    /// `run_with` for exactly four experts (the cubic phase gate's case),
+    /// biases `BW` bytes wide: the same arithmetic, with each expert's rows
+    /// and biases walked in step instead of indexed per row. The blend is
+    /// plain wrapping i64 arithmetic, exact for every row whose biases are
+    /// all within `limit` (the caller's proof; `u64::MAX` for 32-bit
+    /// accumulators, exact whatever the biases, see `exact` in `run_with`);
+    /// any other row takes the saturating formula.
+    fn run_four<const BW: usize>(
         &self,
         four: Rows<4>,
         active: [(u16, i64); 4],
+        limit: u64,
         x: &[i16],
         y: &mut [i16],
     ) -> Result<()> {
         let out = usize::from(self.desc.out_dim);
         let rb = self.row_bytes().max(1);
-        let bias32 = self.bias.as_chunks::<4>().0;
+        let biases = self.bias.as_chunks::<BW>().0;
         let records = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
         let too_short = Error::SectionLength { layer: self.index };
         let expert =
-            |(e, _): (u16, i64)| -> Result<(core::slice::ChunksExact<'_, u8>, &[[u8; 4]])> {
+            |(e, _): (u16, i64)| -> Result<(core::slice::ChunksExact<'_, u8>, &[[u8; BW]])> {
                 let first = usize::from(e) * out;
                 let w = self
                     .weights
                     .get(first * rb..(first + out) * rb)
                     .ok_or(too_short)?;
-                let b = bias32.get(first..first + out).ok_or(too_short)?;
+                let b = biases.get(first..first + out).ok_or(too_short)?;
                 Ok((w.chunks_exact(rb), b))
             };
         let [(mut w0, b0), (mut w1, b1), (mut w2, b2), (mut w3, b3)] = [
@@ -392,7 +430,6 @@ impl DenseLayer<'_> {
             expert(active[3])?,
         ];
         let g = active.map(|(_, g)| g);
-        let b32 = |b: &[u8; 4]| i64::from(i32::from_le_bytes(*b));
         let rows = y
             .iter_mut()
             .zip(records)
@@ -404,19 +441,45 @@ impl DenseLayer<'_> {
                 return Err(too_short);
             };
             let [a0, a1, a2, a3] = four([r0, r1, r2, r3], x);
-            // Gate order, wrapping: exact here (see `exact` in `run_with`).
+            let b = [c0, c1, c2, c3].map(bias_value);
+            let terms = [
+                (a0, (b[0], g[0])),
+                (a1, (b[1], g[1])),
+                (a2, (b[2], g[2])),
+                (a3, (b[3], g[3])),
+            ];
             let mut total = 0i64;
-            for (a, (b, g)) in [
-                (a0, (c0, g[0])),
-                (a1, (c1, g[1])),
-                (a2, (c2, g[2])),
-                (a3, (c3, g[3])),
-            ] {
-                total = total.wrapping_add(a.wrapping_add(b32(b)).wrapping_mul(g));
+            if BW == 4 || b.iter().all(|b| b.unsigned_abs() <= limit) {
+                // Gate order, wrapping: exact here.
+                for (a, (b, g)) in terms {
+                    total = total.wrapping_add(a.wrapping_add(b).wrapping_mul(g));
+                }
+            } else {
+                for (a, (b, g)) in terms {
+                    total = blend_saturating(total, a, b, g);
+                }
             }
             *yi = finish_row(total, rec, self.desc.activation);
         }
         Ok(())
+    }
+}
+
+/// `total + g (acc + b)` with the documented i64 saturations: the blend's
+/// step where it is not proved exact. Not inlined: one copy serves every
+/// row loop (`.text`).
+#[inline(never)]
+fn blend_saturating(total: i64, acc: i64, b: i64, g: i64) -> i64 {
+    total.saturating_add(acc.saturating_add(b).saturating_mul(g))
+}
+
+/// A bias of the blob's width (little-endian i32 or i64).
+#[inline(always)]
+fn bias_value<const BW: usize>(b: &[u8; BW]) -> i64 {
+    match *b.as_slice() {
+        [a, b, c, d] => i64::from(i32::from_le_bytes([a, b, c, d])),
+        [a, b, c, d, e, f, g, h] => i64::from_le_bytes([a, b, c, d, e, f, g, h]),
+        _ => 0,
     }
 }
 
@@ -488,14 +551,15 @@ impl<'a> GatedOp<'a> for DenseLayer<'a> {
     /// One pass over `x` per output row; no scratch.
     fn run(&self, gate: &Gate, x: &[i16], _scratch: &mut [i16], y: &mut [i16]) -> Result<()> {
         let k = match (self.desc.weights, self.desc.acc) {
-            // 64-bit accumulators (rows too heavy for the 32-bit proof, rare)
-            // take one expert per pass: a quarter of the unrolled code.
+            // int8 with 64-bit accumulators (rows too heavy for the 32-bit
+            // proof, rare) takes one expert per pass: a quarter of the
+            // unrolled code.
             (WeightFormat::I8, AccWidth::I32) => Legacy8::dots(),
             (WeightFormat::I8, AccWidth::I64) => Dots::one::<Portable<W8, i64>>(),
             (WeightFormat::I8Interleaved, AccWidth::I32) => Dots::of::<Fast8>(),
             (WeightFormat::I8Interleaved, AccWidth::I64) => Dots::one::<Portable<W8I, i64>>(),
             (WeightFormat::I16, AccWidth::I32) => Dots::of::<Fast16>(),
-            (WeightFormat::I16, AccWidth::I64) => Dots::one::<Portable<W16, i64>>(),
+            (WeightFormat::I16, AccWidth::I64) => Dots::of::<Fast16L>(),
         };
         self.run_with(k, gate, x, y)
     }

@@ -1,17 +1,23 @@
 //! The block loops in Thumb-2 assembly. Registers are fixed because `LDM`
 //! needs its list in ascending order: `r2..r5` eight inputs (`LDM`), `r12`,
 //! `lr` two weight words (`LDRD`), `r0`, `r1` the accumulators, `r8`, `r9`
-//! the weight pointers, `r10` the input pointer, `r11` the block count. A
+//! the weight pointers, `r10` the input pointer, `r11` the count. A
 //! two-row `I8Interleaved` loop needs a thirteenth register for the second
 //! half of a word: `r6`, which Rust reserves for LLVM's base pointer, so the
 //! loop saves and restores it on the stack and never names it as an operand.
+//! The two-row `SMLALD` loop (`I16`, 64-bit accumulators) keeps them in
+//! `r0:r1` and `r2:r3` and reads four inputs at a time into `r4`, `r5`.
 //! Instruction counts per block of 16 inputs: `I8Interleaved` 2 rows 38
 //! (32 MACs) plus the loop's 2 per two blocks, 1 row 22 (loop included);
-//! `I16` 2 rows 26 plus 1, 1 row 16. The two-row loops run two blocks per
-//! iteration, after one lone block when the count is odd (`lsrs` leaves
-//! the halved count's zero flag for `beq`; the block sets no flags).
+//! `I16` 2 rows 26 (`SMLAD`) or 28 (`SMLALD`) plus 1, 1 row 16. The two-row
+//! loops run two blocks per iteration, after one lone block when the count
+//! is odd (`lsrs` leaves the halved count's zero flag for `beq`; the block
+//! sets no flags). The `I8Interleaved` and `SMLALD` loops count pairs of
+//! inputs in `r11` and take the odd ones before the blocks: a last half
+//! group and single groups of four (`I8Interleaved`), single pairs
+//! (`SMLALD`).
 
-use super::{Blocks, BLOCK, W16, W8I};
+use super::{Blocks, BLOCK, W16, W16L, W8I};
 use core::arch::asm;
 
 /// The block loops of the target.
@@ -127,6 +133,103 @@ macro_rules! i16_block2 {
     };
 }
 
+/// Four inputs of two `I16` rows into 64-bit accumulators `r0:r1` and
+/// `r2:r3`: one `LDRD` of inputs (`r4`, `r5`) shared by both rows, one of
+/// weights per row (`r12`, `lr`), two `SMLALD`s per row.
+macro_rules! i16l_step2 {
+    () => {
+        concat!(
+            "ldrd r4, r5, [r10], #8\n",
+            "ldrd r12, lr, [r8], #8\n",
+            "smlald r0, r1, r12, r4\n",
+            "smlald r0, r1, lr, r5\n",
+            "ldrd r12, lr, [r9], #8\n",
+            "smlald r2, r3, r12, r4\n",
+            "smlald r2, r3, lr, r5\n",
+        )
+    };
+}
+
+/// One block (16 inputs) of two `I16` rows, 64-bit accumulators.
+macro_rules! i16l_block2 {
+    () => {
+        concat!(i16l_step2!(), i16l_step2!(), i16l_step2!(), i16l_step2!())
+    };
+}
+
+/// Eight inputs (`r2..r5`) of one `I16` row into the 64-bit accumulator
+/// `r0:r1`.
+macro_rules! i16l_step1 {
+    () => {
+        concat!(
+            "ldrd r12, lr, [r8], #8\n",
+            "smlald r0, r1, r12, r2\n",
+            "smlald r0, r1, lr, r3\n",
+            "ldrd r12, lr, [r8], #8\n",
+            "smlald r0, r1, r12, r4\n",
+            "smlald r0, r1, lr, r5\n",
+        )
+    };
+}
+
+/// When the pair count `r11` is odd, the last pair of inputs (`r2`) against
+/// the low pair of its group's word in each row (`i8_half!`: `SXTB16`;
+/// slots 0 and 2 hold its two weights, slots 1 and 3 padding), read by
+/// index before the pointers move; `r11` becomes even.
+macro_rules! i8_last_half {
+    ($($half:ident ! ($($arg:tt)*)),*) => {
+        concat!(
+            "tst r11, #1\n",
+            "beq 6f\n",
+            "sub r11, r11, #1\n",
+            "ldr r2, [r10, r11, lsl #2]\n",
+            $($half!($($arg)*),)*
+            "6:\n",
+        )
+    };
+}
+
+/// The last half group of one row (see `i8_last_half!`).
+macro_rules! i8_half {
+    ($acc:literal, $ptr:literal) => {
+        concat!(
+            "ldr r12, [",
+            $ptr,
+            ", r11, lsl #1]\n",
+            "sxtb16 r12, r12\n",
+            "smlad ",
+            $acc,
+            ", r12, r2, ",
+            $acc,
+            "\n",
+        )
+    };
+}
+
+/// Four inputs (`r2`, `r3`) of one `I8Interleaved` row: one word of
+/// weights, split into its two pairs.
+macro_rules! i8_group {
+    ($acc:literal, $ptr:literal) => {
+        concat!(
+            "ldr r12, [",
+            $ptr,
+            "], #4\n",
+            "sxtb16 lr, r12\n",
+            "smlad ",
+            $acc,
+            ", lr, r2, ",
+            $acc,
+            "\n",
+            "sxtb16 r12, r12, ror #8\n",
+            "smlad ",
+            $acc,
+            ", r12, r3, ",
+            $acc,
+            "\n",
+        )
+    };
+}
+
 /// The next eight inputs into `r2..r5`.
 macro_rules! load_x {
     () => {
@@ -143,6 +246,18 @@ impl Blocks<W8I, 1> for Asm {
         // docs; the flags are clobbered (no `preserves_flags`).
         unsafe {
             asm!(
+                i8_last_half!(i8_half!("r0", "r8")),
+                "lsrs r11, r11, #1",
+                "1:",
+                "tst r11, #3",
+                "beq 4f",
+                "ldrd r2, r3, [r10], #8",
+                i8_group!("r0", "r8"),
+                "sub r11, r11, #1",
+                "b 1b",
+                "4:",
+                "lsrs r11, r11, #2",
+                "beq 5f",
                 "2:",
                 load_x!(),
                 i8_step!("r0", "r8", "r1"),
@@ -150,11 +265,12 @@ impl Blocks<W8I, 1> for Asm {
                 i8_step!("r0", "r8", "r1"),
                 "subs r11, r11, #1",
                 "bne 2b",
+                "5:",
                 inout("r0") a0,
                 out("r1") _,
                 inout("r8") rows[0].as_ptr() => _,
                 inout("r10") x.as_ptr() => _,
-                inout("r11") x.len() / BLOCK => _,
+                inout("r11") x.len() / 2 => _,
                 out("r2") _, out("r3") _, out("r4") _, out("r5") _,
                 out("r12") _, out("lr") _,
                 options(readonly, nostack),
@@ -165,6 +281,8 @@ impl Blocks<W8I, 1> for Asm {
 }
 
 impl Blocks<W8I, 2> for Asm {
+    // Not inlined: `pass` and `quad` share one copy (`.text`).
+    #[inline(never)]
     unsafe fn run(rows: [&[u8]; 2], x: &[i16]) -> [i32; 2] {
         let (mut a0, mut a1) = (0i32, 0i32);
         // SAFETY: as for one row, for both rows; `r6` is pushed and popped
@@ -172,7 +290,18 @@ impl Blocks<W8I, 2> for Asm {
         unsafe {
             asm!(
                 "push {{r6}}",
+                i8_last_half!(i8_half!("r0", "r8"), i8_half!("r1", "r9")),
                 "lsrs r11, r11, #1",
+                "1:",
+                "tst r11, #3",
+                "beq 4f",
+                "ldrd r2, r3, [r10], #8",
+                i8_group!("r0", "r8"),
+                i8_group!("r1", "r9"),
+                "sub r11, r11, #1",
+                "b 1b",
+                "4:",
+                "lsrs r11, r11, #3",
                 "bcc 3f",
                 i8_block2!(),
                 "3:",
@@ -189,7 +318,7 @@ impl Blocks<W8I, 2> for Asm {
                 inout("r8") rows[0].as_ptr() => _,
                 inout("r9") rows[1].as_ptr() => _,
                 inout("r10") x.as_ptr() => _,
-                inout("r11") x.len() / BLOCK => _,
+                inout("r11") x.len() / 2 => _,
                 out("r2") _, out("r3") _, out("r4") _, out("r5") _,
                 out("r12") _, out("lr") _,
             );
@@ -225,6 +354,8 @@ impl Blocks<W16, 1> for Asm {
 }
 
 impl Blocks<W16, 2> for Asm {
+    // Not inlined: `pass` and `quad` share one copy (`.text`).
+    #[inline(never)]
     unsafe fn run(rows: [&[u8]; 2], x: &[i16]) -> [i32; 2] {
         let (mut a0, mut a1) = (0i32, 0i32);
         // SAFETY: as for one row, for both rows.
@@ -253,5 +384,103 @@ impl Blocks<W16, 2> for Asm {
             );
         }
         [a0, a1]
+    }
+}
+
+/// A 64-bit accumulator from its two halves (`RdLo`, `RdHi` of `SMLALD`).
+fn wide(lo: u32, hi: u32) -> i64 {
+    ((u64::from(hi) << 32) | u64::from(lo)) as i64
+}
+
+impl Blocks<W16L, 1> for Asm {
+    unsafe fn run(rows: [&[u8]; 1], x: &[i16]) -> [i64; 1] {
+        let (lo, hi): (u32, u32);
+        // SAFETY: the caller's contract: `x.len() / 2 >= 1` pairs of inputs
+        // (4 bytes) and weights (4 bytes), word-aligned (`LDM`, `LDRD`);
+        // only those are read: `pairs mod 8` single pairs, then the blocks
+        // (`lsrs` by 3: the block count, zero flag when there is none).
+        // `r0:r1` is the accumulator.
+        unsafe {
+            asm!(
+                "1:",
+                "tst r11, #7",
+                "beq 4f",
+                "ldr r2, [r10], #4",
+                "ldr r12, [r8], #4",
+                "smlald r0, r1, r12, r2",
+                "sub r11, r11, #1",
+                "b 1b",
+                "4:",
+                "lsrs r11, r11, #3",
+                "beq 5f",
+                "2:",
+                load_x!(),
+                i16l_step1!(),
+                load_x!(),
+                i16l_step1!(),
+                "subs r11, r11, #1",
+                "bne 2b",
+                "5:",
+                inout("r0") 0u32 => lo,
+                inout("r1") 0u32 => hi,
+                inout("r8") rows[0].as_ptr() => _,
+                inout("r10") x.as_ptr() => _,
+                inout("r11") x.len() / 2 => _,
+                out("r2") _, out("r3") _, out("r4") _, out("r5") _,
+                out("r12") _, out("lr") _,
+                options(readonly, nostack),
+            );
+        }
+        [wide(lo, hi)]
+    }
+}
+
+impl Blocks<W16L, 2> for Asm {
+    // Not inlined: `pass` and `quad` share one copy (`.text`).
+    #[inline(never)]
+    unsafe fn run(rows: [&[u8]; 2], x: &[i16]) -> [i64; 2] {
+        let (lo0, hi0, lo1, hi1): (u32, u32, u32, u32);
+        // SAFETY: as for one row, for both rows; `r0:r1` and `r2:r3` are the
+        // accumulators, inputs come four at a time by `LDRD` (`r4`, `r5`).
+        // After the single pairs, `lsrs` by 4 leaves the halved block count,
+        // the odd block in the carry and the zero flag as in `I16`.
+        unsafe {
+            asm!(
+                "1:",
+                "tst r11, #7",
+                "beq 4f",
+                "ldr r4, [r10], #4",
+                "ldr r12, [r8], #4",
+                "smlald r0, r1, r12, r4",
+                "ldr r12, [r9], #4",
+                "smlald r2, r3, r12, r4",
+                "sub r11, r11, #1",
+                "b 1b",
+                "4:",
+                "lsrs r11, r11, #4",
+                "bcc 3f",
+                i16l_block2!(),
+                "3:",
+                "beq 5f",
+                "2:",
+                i16l_block2!(),
+                i16l_block2!(),
+                "subs r11, r11, #1",
+                "bne 2b",
+                "5:",
+                inout("r0") 0u32 => lo0,
+                inout("r1") 0u32 => hi0,
+                inout("r2") 0u32 => lo1,
+                inout("r3") 0u32 => hi1,
+                inout("r8") rows[0].as_ptr() => _,
+                inout("r9") rows[1].as_ptr() => _,
+                inout("r10") x.as_ptr() => _,
+                inout("r11") x.len() / 2 => _,
+                out("r4") _, out("r5") _,
+                out("r12") _, out("lr") _,
+                options(readonly, nostack),
+            );
+        }
+        [wide(lo0, hi0), wide(lo1, hi1)]
     }
 }

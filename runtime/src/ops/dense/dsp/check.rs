@@ -1,13 +1,13 @@
 //! The on-target half of the kernels' equivalence proof (`kernel-check`
 //! feature; run by `firmware/src/bin/kernel-check.rs` under QEMU): seeded
-//! random cases of the host emulation test's kinds (both layouts, 1, 2 and
-//! 4 experts, every input width 1..=70 so every tail, full-range weights
+//! random cases of the host emulation test's kinds (both layouts, `I16`
+//! with 32- and 64-bit accumulators, 1, 2 and 4 experts, every input width 1..=70 so every tail, full-range weights
 //! and inputs, random padding, word-aligned and misaligned rows and
 //! inputs) through the assembly kernel and the portable one, bit for bit.
 
 use super::{Asm, Smlad};
 use crate::blob::WeightFormat;
-use crate::ops::dense::{Kernel, Portable, W16, W8I};
+use crate::ops::dense::{Kernel, Portable, W16, W16L, W8I};
 
 /// Widest case, in inputs.
 const MAX_IN: usize = 70;
@@ -48,10 +48,11 @@ impl Rng {
 /// Whether the assembly kernel and the portable one agree on case `seed`.
 pub fn kernel_check(seed: u64) -> bool {
     let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
-    let format = if rng.below(2) == 0 {
-        WeightFormat::I8Interleaved
-    } else {
-        WeightFormat::I16
+    // `I16` twice: 32-bit (`SMLAD`) and 64-bit (`SMLALD`) accumulators.
+    let (format, wide) = match rng.below(3) {
+        0 => (WeightFormat::I8Interleaved, false),
+        1 => (WeightFormat::I16, false),
+        _ => (WeightFormat::I16, true),
     };
     let experts = 1usize << rng.below(3);
     let n_in = 1 + rng.below(MAX_IN as u64) as usize;
@@ -81,6 +82,9 @@ pub fn kernel_check(seed: u64) -> bool {
     }
     let x = b.x.get(x_misalign..x_misalign + n_in).unwrap_or(&[]);
     match format {
+        WeightFormat::I16 if wide => {
+            agree::<Smlad<W16L, Asm>, Portable<W16L, i64>>(experts, rows, x)
+        }
         WeightFormat::I16 => agree::<Smlad<W16, Asm>, Portable<W16, i32>>(experts, rows, x),
         _ => agree::<Smlad<W8I, Asm>, Portable<W8I, i32>>(experts, rows, x),
     }

@@ -6,9 +6,9 @@
 //! reference. The assembly itself is checked on the target by
 //! `firmware/src/bin/kernel-check.rs` under QEMU.
 
-use super::{Blocks, Kernel, Smlad, BLOCK, W16, W8I};
+use super::{Blocks, Kernel, Smlad, BLOCK, W16, W16L, W8I};
 use crate::blob::WeightFormat;
-use crate::ops::dense::Portable;
+use crate::ops::dense::{Acc, Portable};
 use proptest::prelude::*;
 
 /// `SXTB16 Rd, Rm, ROR #rot`: bytes 0 and 2 of `Rm` rotated right by
@@ -26,6 +26,14 @@ fn smlad(rn: u32, rm: u32, ra: i32) -> i32 {
     let lo = i64::from(rn as i16) * i64::from(rm as i16);
     let hi = i64::from((rn >> 16) as i16) * i64::from((rm >> 16) as i16);
     (i64::from(ra) + lo + hi) as i32
+}
+
+/// `SMLALD RdLo, RdHi, Rn, Rm`: `RdHi:RdLo + Rn.lo * Rm.lo + Rn.hi *
+/// Rm.hi`, modulo 2^64 (A7.7.118).
+fn smlald(rn: u32, rm: u32, acc: i64) -> i64 {
+    let lo = i64::from(rn as i16) * i64::from(rm as i16);
+    let hi = i64::from((rn >> 16) as i16) * i64::from((rm >> 16) as i16);
+    acc.wrapping_add(lo).wrapping_add(hi)
 }
 
 /// `LDM r10!, {r2-r5}`: eight inputs as four words, advancing `at`.
@@ -71,6 +79,19 @@ fn i16_step(acc: &mut i32, row: &[u8], at: &mut usize, x: [u32; 4]) {
     *acc = smlad(lr, x[3], *acc);
 }
 
+/// Eight inputs of one `I16` row into a 64-bit accumulator: the two-row
+/// loop's `i16l_step2!` twice (inputs by `LDRD`, four at a time) and the
+/// one-row loop's `i16l_step1!` (by `LDM`) read the same words and pair
+/// them the same way.
+fn i16l_step(acc: &mut i64, row: &[u8], at: &mut usize, x: [u32; 4]) {
+    let (r12, lr) = ldrd(row, at);
+    *acc = smlald(r12, x[0], *acc);
+    *acc = smlald(lr, x[1], *acc);
+    let (r12, lr) = ldrd(row, at);
+    *acc = smlald(r12, x[2], *acc);
+    *acc = smlald(lr, x[3], *acc);
+}
+
 /// The block loops, run on the emulated instructions.
 struct Emulated;
 
@@ -78,18 +99,18 @@ struct Emulated;
 /// step. One row: one block per iteration, the count decremented to zero.
 /// Two rows: the count halved (`lsrs`), a lone block when it was odd, then
 /// two blocks per iteration unless the halved count is zero (`beq`).
-fn blocks<const N: usize>(
+fn blocks<A: Acc, const N: usize>(
     rows: [&[u8]; N],
     x: &[i16],
-    step: fn(&mut i32, &[u8], &mut usize, [u32; 4]),
-) -> [i32; N] {
+    step: fn(&mut A, &[u8], &mut usize, [u32; 4]),
+) -> [A; N] {
     assert!(
         !x.is_empty() && x.len().is_multiple_of(BLOCK),
         "contract: whole blocks"
     );
-    let mut acc = [0i32; N];
+    let mut acc = [A::ZERO; N];
     let (mut xp, mut wp) = (0usize, [0usize; N]);
-    let mut block = |acc: &mut [i32; N]| {
+    let mut block = |acc: &mut [A; N]| {
         for _ in 0..2 {
             let regs = ldm4(x, &mut xp);
             for ((a, row), p) in acc.iter_mut().zip(rows).zip(&mut wp) {
@@ -124,15 +145,100 @@ fn blocks<const N: usize>(
     acc
 }
 
+/// The `I8Interleaved` loops: for an odd pair count the last pair against
+/// the low pair of its group's word (`i8_last_half!`, by index), then
+/// `groups mod 4` single groups (`i8_group!`), then the whole blocks as in
+/// [`blocks`].
 impl<const N: usize> Blocks<W8I, N> for Emulated {
     unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [i32; N] {
-        blocks(rows, x, i8_step)
+        assert!(
+            !x.is_empty() && x.len().is_multiple_of(2),
+            "contract: whole pairs"
+        );
+        let word = |at: usize| u32::from(x[at] as u16) | (u32::from(x[at + 1] as u16) << 16);
+        let mut acc = [0i32; N];
+        let mut pairs = x.len() / 2;
+        if pairs % 2 == 1 {
+            pairs -= 1;
+            let xw = word(2 * pairs);
+            for (a, row) in acc.iter_mut().zip(rows) {
+                let mut at = 2 * pairs;
+                *a = smlad(sxtb16(ldr(row, &mut at), 0), xw, *a);
+            }
+        }
+        let groups = pairs / 2;
+        let mut wp = [0usize; N];
+        for g in 0..groups % 4 {
+            let (x01, x23) = (word(4 * g), word(4 * g + 2));
+            for ((a, row), at) in acc.iter_mut().zip(rows).zip(&mut wp) {
+                let w = ldr(row, at);
+                *a = smlad(sxtb16(w, 0), x01, *a);
+                *a = smlad(sxtb16(w, 8), x23, *a);
+            }
+        }
+        let done = 4 * (groups % 4);
+        if groups >= 4 {
+            let rest: [&[u8]; N] = core::array::from_fn(|k| &rows[k][done..4 * groups]);
+            let sums = blocks(rest, &x[done..4 * groups], i8_step);
+            for (a, s) in acc.iter_mut().zip(sums) {
+                *a = a.wrapping_add(s);
+            }
+        }
+        for row in rows {
+            assert_eq!(
+                row.len(),
+                x.len().next_multiple_of(4),
+                "contract: the loop reads each row to its end"
+            );
+        }
+        acc
     }
 }
 
 impl<const N: usize> Blocks<W16, N> for Emulated {
     unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [i32; N] {
         blocks(rows, x, i16_step)
+    }
+}
+
+/// `LDR r, [p], #4` of a row: one little-endian word, advancing `at`.
+fn ldr(row: &[u8], at: &mut usize) -> u32 {
+    let w = u32::from_le_bytes(row[*at..*at + 4].try_into().unwrap());
+    *at += 4;
+    w
+}
+
+/// The `I16` loops with 64-bit accumulators: `pairs mod 8` single pairs of
+/// inputs (`LDR`, one `SMLALD` per row), then the whole blocks as in
+/// [`blocks`].
+impl<const N: usize> Blocks<W16L, N> for Emulated {
+    unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [i64; N] {
+        assert!(
+            !x.is_empty() && x.len().is_multiple_of(2),
+            "contract: whole pairs"
+        );
+        let mut acc = [0i64; N];
+        let pairs = x.len() / 2 % 8;
+        let mut wp = [0usize; N];
+        for p in 0..pairs {
+            let xw = u32::from(x[2 * p] as u16) | (u32::from(x[2 * p + 1] as u16) << 16);
+            for ((a, row), at) in acc.iter_mut().zip(rows).zip(&mut wp) {
+                *a = smlald(ldr(row, at), xw, *a);
+            }
+        }
+        let done = 2 * pairs;
+        if done < x.len() {
+            let rest: [&[u8]; N] = core::array::from_fn(|k| &rows[k][4 * pairs..]);
+            let sums = blocks(rest, &x[done..], i16l_step);
+            for (a, s) in acc.iter_mut().zip(sums) {
+                *a = a.wrapping_add(s);
+            }
+        } else {
+            for (row, p) in rows.iter().zip(wp) {
+                assert_eq!(row.len(), p, "contract: the loop reads each row to its end");
+            }
+        }
+        acc
     }
 }
 
@@ -144,6 +250,9 @@ fn instruction_semantics() {
     // (-32768)^2 twice overflows i32: kept modulo 2^32, like the hardware.
     assert_eq!(smlad(0x8000_8000, 0x8000_8000, 0), i32::MIN);
     assert_eq!(smlad(0x0002_FFFF, 0x0003_0005, 10), 10 - 5 + 6);
+    // SMLALD keeps both products' 2^31 exactly.
+    assert_eq!(smlald(0x8000_8000, 0x8000_8000, 0), 1 << 31);
+    assert_eq!(smlald(0x0002_FFFF, 0x0003_0005, -1 << 40), (-1 << 40) + 1);
 }
 
 /// `len` bytes starting `misalign` bytes past a word boundary.
@@ -171,6 +280,8 @@ fn as_bytes(buf: &[u32]) -> &[u8] {
 #[derive(Debug, Clone)]
 struct Case {
     format: WeightFormat,
+    /// 64-bit accumulators (`I16` only).
+    wide: bool,
     w: Vec<Vec<i32>>,
     x: Vec<i16>,
     row_misalign: Vec<usize>,
@@ -179,14 +290,18 @@ struct Case {
 
 fn case() -> impl Strategy<Value = Case> {
     (
-        prop_oneof![Just(WeightFormat::I8Interleaved), Just(WeightFormat::I16)],
+        prop_oneof![
+            Just((WeightFormat::I8Interleaved, false)),
+            Just((WeightFormat::I16, false)),
+            Just((WeightFormat::I16, true))
+        ],
         prop_oneof![Just(1usize), Just(2), Just(4)],
         1usize..=70,
         any::<u64>(),
         prop_oneof![4 => Just(0usize), 1 => 1usize..4],
         prop_oneof![4 => Just(0usize), 1 => Just(1)],
     )
-        .prop_map(|(format, experts, in_dim, seed, rmis, xmis)| {
+        .prop_map(|((format, wide), experts, in_dim, seed, rmis, xmis)| {
             let mut s = seed | 1;
             let mut next = move || {
                 s ^= s << 13;
@@ -212,6 +327,7 @@ fn case() -> impl Strategy<Value = Case> {
                 .collect();
             Case {
                 format,
+                wide,
                 w,
                 x,
                 row_misalign,
@@ -234,7 +350,7 @@ fn encode(row: &[i32], format: WeightFormat) -> Vec<u8> {
 }
 
 /// The kernels' dot products for `c`: (Smlad over Emulated, Portable, exact
-/// sum modulo 2^32).
+/// sum, modulo 2^32 for 32-bit accumulators).
 fn run(c: &Case) -> (Vec<i64>, Vec<i64>, Vec<i64>) {
     let stored: Vec<_> =
         c.w.iter()
@@ -259,7 +375,11 @@ fn run(c: &Case) -> (Vec<i64>, Vec<i64>, Vec<i64>) {
                     .zip(&c.x)
                     .map(|(&w, &v)| i64::from(w) * i64::from(v))
                     .sum();
-                i64::from(s as i32)
+                if c.wide {
+                    s
+                } else {
+                    i64::from(s as i32)
+                }
             })
             .collect();
     fn both<K: Kernel>(rows: &[&[u8]], x: &[i16]) -> Vec<i64> {
@@ -270,6 +390,11 @@ fn run(c: &Case) -> (Vec<i64>, Vec<i64>, Vec<i64>) {
         }
     }
     match c.format {
+        WeightFormat::I16 if c.wide => (
+            both::<Smlad<W16L, Emulated>>(&rows, x),
+            both::<Portable<W16L, i64>>(&rows, x),
+            exact,
+        ),
         WeightFormat::I16 => (
             both::<Smlad<W16, Emulated>>(&rows, x),
             both::<Portable<W16, i32>>(&rows, x),
@@ -287,8 +412,9 @@ proptest! {
     #![proptest_config(ProptestConfig::with_cases(2000))]
 
     /// The DSP algorithm equals the portable kernel bit for bit (and both
-    /// the exact sum modulo 2^32), for every tail length of the block
-    /// (in_dim 1..=70), 1, 2 and 4 experts, full-range weights and inputs,
+    /// the exact sum, modulo 2^32 with 32-bit accumulators), for every tail
+    /// length of the block (in_dim 1..=70), 1, 2 and 4 experts, both
+    /// accumulator widths of `I16`, full-range weights and inputs,
     /// aligned rows (the block loop) and misaligned ones (the fallback).
     #[test]
     fn smlad_equals_portable(c in case()) {
