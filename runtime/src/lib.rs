@@ -25,6 +25,7 @@ pub mod blob;
 mod error;
 pub(crate) mod fixed;
 pub mod graph;
+pub mod mac_count;
 mod model;
 pub mod ops;
 pub mod probe;

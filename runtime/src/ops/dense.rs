@@ -144,22 +144,35 @@ impl Acc for i64 {
     }
 }
 
+/// The model's multiply-accumulates among `steps` steps over `x` of
+/// `rows` rows: a layout's padding slots (past `x`) multiply zeros.
+#[inline(always)]
+fn model_macs(steps: usize, x: &[i16], rows: usize) -> usize {
+    steps.min(x.len()) * rows
+}
+
 #[inline(always)]
 fn dot1<W: Weight, A: Acc>(r: [&[u8]; 1], x: &[i16]) -> [A; 1] {
     let mut a = A::ZERO;
+    let mut n = 0;
     for (w, v) in W::row(r[0]).zip(W::xs(x)) {
         a = a.mac(w * v);
+        n += 1;
     }
+    crate::mac_count::add(model_macs(n, x, 1));
     [a]
 }
 
 #[inline(always)]
 fn dot2<W: Weight, A: Acc>(r: [&[u8]; 2], x: &[i16]) -> [A; 2] {
     let (mut a0, mut a1) = (A::ZERO, A::ZERO);
+    let mut n = 0;
     for ((w0, w1), v) in W::row(r[0]).zip(W::row(r[1])).zip(W::xs(x)) {
         a0 = a0.mac(w0 * v);
         a1 = a1.mac(w1 * v);
+        n += 1;
     }
+    crate::mac_count::add(model_macs(n, x, 2));
     [a0, a1]
 }
 
@@ -170,12 +183,15 @@ fn dot4<W: Weight, A: Acc>(r: [&[u8]; 4], x: &[i16]) -> [A; 4] {
         .zip(W::row(r[1]))
         .zip(W::row(r[2]))
         .zip(W::row(r[3]));
+    let mut n = 0;
     for ((((w0, w1), w2), w3), v) in rows.zip(W::xs(x)) {
         a0 = a0.mac(w0 * v);
         a1 = a1.mac(w1 * v);
         a2 = a2.mac(w2 * v);
         a3 = a3.mac(w3 * v);
+        n += 1;
     }
+    crate::mac_count::add(model_macs(n, x, 4));
     [a0, a1, a2, a3]
 }
 

@@ -53,6 +53,7 @@ impl<'a> DiagLayer<'a> {
                 let b = bias_at(self.bias, width, k * n + i).unwrap_or(0);
                 let v = (self.weight(k, i) * i64::from(xi)).saturating_add(b);
                 total = total.saturating_add(v.saturating_mul(i64::from(g)));
+                crate::mac_count::add(1);
             }
             *yi = finish_row(total, rec, self.desc.activation);
         }
