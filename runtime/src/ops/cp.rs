@@ -17,10 +17,11 @@ use super::common::{
     check_dims, finish_row, i16_at, requant_record, row_l1, too_short, too_small, Sections,
     I32_ROW_BOUND,
 };
+use super::dense::matrix_kernel;
 use super::GatedOp;
 use crate::blob::records::bias_at;
 use crate::blob::REQUANT_RECORD_LEN;
-use crate::blob::{AccWidth, Gating, LayerDesc, LayerOp, Requant, WeightFormat};
+use crate::blob::{AccWidth, Gating, LayerDesc, LayerOp, Requant};
 use crate::error::{Error, Result};
 use crate::fixed::gate::{Gate, ONE};
 use crate::fixed::{round_shift, sat_i16, sat_i32};
@@ -107,42 +108,6 @@ pub fn blend_core(cores: &[u8], rank: usize, gate: &Gate, r: usize) -> i64 {
     round_shift(c, 16)
 }
 
-/// `sum_j w_j x_j` of a row of `WB`-byte weights; `WIDE` selects the i64
-/// accumulator, else i32 (which the loader proved cannot wrap).
-#[inline(always)]
-fn dot<const WB: usize, const WIDE: bool>(row: &[u8], x: &[i16]) -> i64 {
-    if WB == 1 {
-        if WIDE {
-            let mut a = 0i64;
-            for (&w, &v) in row.iter().zip(x) {
-                a += i64::from(i32::from(w as i8) * i32::from(v));
-            }
-            a
-        } else {
-            let mut a = 0i32;
-            for (&w, &v) in row.iter().zip(x) {
-                a = a.wrapping_add(i32::from(w as i8) * i32::from(v));
-            }
-            i64::from(a)
-        }
-    } else {
-        let pairs = row.as_chunks::<2>().0;
-        if WIDE {
-            let mut a = 0i64;
-            for (w, &v) in pairs.iter().zip(x) {
-                a += i64::from(i32::from(i16::from_le_bytes(*w)) * i32::from(v));
-            }
-            a
-        } else {
-            let mut a = 0i32;
-            for (w, &v) in pairs.iter().zip(x) {
-                a = a.wrapping_add(i32::from(i16::from_le_bytes(*w)) * i32::from(v));
-            }
-            i64::from(a)
-        }
-    }
-}
-
 /// A validated CP layer: its descriptor and its payload sections.
 #[derive(Clone, Copy, Debug)]
 pub struct CpLayer<'a> {
@@ -150,9 +115,9 @@ pub struct CpLayer<'a> {
     pub desc: LayerDesc,
     /// Rank `R`.
     pub rank: u16,
-    /// `B^T`: `rank x in` weights.
+    /// `B^T`: `rank` rows of `in` weights, in the layer's weight format.
     pub bt: &'a [u8],
-    /// `A`: `out x rank` weights.
+    /// `A`: `out` rows of `rank` weights, in the layer's weight format.
     pub a: &'a [u8],
     /// `experts x rank` i16 cores.
     pub cores: &'a [u8],
@@ -167,10 +132,6 @@ pub struct CpLayer<'a> {
 }
 
 impl<'a> CpLayer<'a> {
-    fn wb(&self) -> usize {
-        self.desc.weights.bytes()
-    }
-
     fn rank(&self) -> usize {
         usize::from(self.rank)
     }
@@ -178,82 +139,97 @@ impl<'a> CpLayer<'a> {
     /// Stage one: `z = requant_mid((B^T x) . c)`; `x` has `in_dim` elements,
     /// `z` at least `rank`.
     pub fn middle(&self, gate: &Gate, x: &[i16], z: &mut [i16]) -> Result<()> {
-        match (self.desc.weights, self.desc.acc) {
-            (WeightFormat::I8 | WeightFormat::I8Interleaved, AccWidth::I32) => {
-                self.middle_typed::<1, false>(gate, x, z)
-            }
-            (WeightFormat::I8 | WeightFormat::I8Interleaved, AccWidth::I64) => {
-                self.middle_typed::<1, true>(gate, x, z)
-            }
-            (WeightFormat::I16, AccWidth::I32) => self.middle_typed::<2, false>(gate, x, z),
-            (WeightFormat::I16, AccWidth::I64) => self.middle_typed::<2, true>(gate, x, z),
-        }
-    }
-
-    fn middle_typed<const WB: usize, const WIDE: bool>(
-        &self,
-        gate: &Gate,
-        x: &[i16],
-        z: &mut [i16],
-    ) -> Result<()> {
         let n_in = usize::from(self.desc.in_dim);
         let rank = self.rank();
         let x = x.get(..n_in).ok_or(too_short(n_in, x.len()))?;
         let capacity = z.len();
         let z = z.get_mut(..rank).ok_or(too_small(rank, capacity))?;
-        let rows = self.bt.chunks_exact((n_in * WB).max(1));
         let recs = self.mid.as_chunks::<MID_RECORD_LEN>().0;
-        for (r, ((zr, row), rec)) in z.iter_mut().zip(rows).zip(recs).enumerate() {
-            let t = dot::<WB, WIDE>(row, x);
+        let none = MidRecord {
+            multiplier: 0,
+            t_shift: 0,
+            pre_shift: 0,
+            post_shift: 0,
+        };
+        self.each_dot(self.bt, x, z, |r, t| {
             let c = blend_core(self.cores, rank, gate, r);
-            let rec = MidRecord::from_bytes(rec).unwrap_or(MidRecord {
-                multiplier: 0,
-                t_shift: 0,
-                pre_shift: 0,
-                post_shift: 0,
-            });
-            *zr = rec.apply(t, c);
-        }
-        Ok(())
+            let rec = recs.get(r).and_then(MidRecord::from_bytes).unwrap_or(none);
+            rec.apply(t, c)
+        })
     }
 
     /// Stage two: `y = act(requant(2^16 A z + sum_k g_k b_k))`; `z` has
     /// `rank` elements, `y` at least `out_dim`.
     pub fn output(&self, gate: &Gate, z: &[i16], y: &mut [i16]) -> Result<()> {
-        match (self.desc.weights, self.desc.acc) {
-            (WeightFormat::I8 | WeightFormat::I8Interleaved, AccWidth::I32) => {
-                self.output_typed::<1, false>(gate, z, y)
-            }
-            (WeightFormat::I8 | WeightFormat::I8Interleaved, AccWidth::I64) => {
-                self.output_typed::<1, true>(gate, z, y)
-            }
-            (WeightFormat::I16, AccWidth::I32) => self.output_typed::<2, false>(gate, z, y),
-            (WeightFormat::I16, AccWidth::I64) => self.output_typed::<2, true>(gate, z, y),
-        }
-    }
-
-    fn output_typed<const WB: usize, const WIDE: bool>(
-        &self,
-        gate: &Gate,
-        z: &[i16],
-        y: &mut [i16],
-    ) -> Result<()> {
         let rank = self.rank();
         let out = usize::from(self.desc.out_dim);
         let z = z.get(..rank).ok_or(too_short(rank, z.len()))?;
         let capacity = y.len();
         let y = y.get_mut(..out).ok_or(too_small(out, capacity))?;
         let width = self.desc.acc.bytes();
-        let rows = self.a.chunks_exact((rank * WB).max(1));
         let recs = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
-        for (i, ((yi, row), rec)) in y.iter_mut().zip(rows).zip(recs).enumerate() {
-            let acc = dot::<WB, WIDE>(row, z);
-            let mut total = acc.saturating_mul(i64::from(ONE));
-            for (e, g) in gate.iter() {
-                let b = bias_at(self.bias, width, usize::from(e) * out + i).unwrap_or(0);
-                total = total.saturating_add(b.saturating_mul(i64::from(g)));
+        let bias32 = self.bias.as_chunks::<4>().0;
+        // With 32-bit accumulators and biases, `|2^16 acc| < 2^47` and
+        // `sum_k |g_k b_k| <= 2^31 sum_k |g_k| < 2^62` when the gate's L1
+        // norm is below 2^31: no saturation can act, so plain i64
+        // arithmetic gives the saturating blend's bits without the M4's
+        // costly overflow checks (as in the dense layer).
+        let l1: u64 = gate.iter().map(|(_, g)| u64::from(g.unsigned_abs())).sum();
+        let exact = self.desc.acc == AccWidth::I32 && l1 < 1 << 31;
+        let activation = self.desc.activation;
+        self.each_dot(self.a, z, y, |i, acc| {
+            let mut total;
+            if exact {
+                total = acc.wrapping_mul(i64::from(ONE));
+                for (e, g) in gate.iter() {
+                    let at = usize::from(e) * out + i;
+                    let b = bias32.get(at).map_or(0, |c| i32::from_le_bytes(*c));
+                    total = total.wrapping_add(i64::from(b).wrapping_mul(i64::from(g)));
+                }
+            } else {
+                total = acc.saturating_mul(i64::from(ONE));
+                for (e, g) in gate.iter() {
+                    let b = bias_at(self.bias, width, usize::from(e) * out + i).unwrap_or(0);
+                    total = total.saturating_add(b.saturating_mul(i64::from(g)));
+                }
             }
-            *yi = finish_row(total, rec, self.desc.activation);
+            let rec = recs.get(i).unwrap_or(&[0; REQUANT_RECORD_LEN]);
+            finish_row(total, rec, activation)
+        })
+    }
+
+    /// `out[i] = f(i, row_i . x)` for every row of `matrix` (rows of
+    /// `x.len()` weights in the layer's format), two rows per pass over
+    /// `x` where the format's kernel has a two-row loop (the dense
+    /// layer's kernels: the DSP loops on Armv7E-M).
+    #[inline(always)]
+    fn each_dot(
+        &self,
+        matrix: &[u8],
+        x: &[i16],
+        out: &mut [i16],
+        mut f: impl FnMut(usize, i64) -> i16,
+    ) -> Result<()> {
+        let (one, two) = matrix_kernel(self.desc.weights, self.desc.acc);
+        let rb = self.desc.weights.row_bytes(x.len());
+        let row = |i: usize| {
+            matrix
+                .get(i * rb..(i + 1) * rb)
+                .ok_or(Error::SectionLength { layer: self.index })
+        };
+        let mut i = 0;
+        if let Some(two) = two {
+            let (pairs, _) = out.as_chunks_mut::<2>();
+            for pair in pairs {
+                let [d0, d1] = two([row(i)?, row(i + 1)?], x);
+                *pair = [f(i, d0), f(i + 1, d1)];
+                i += 2;
+            }
+        }
+        for o in out.iter_mut().skip(i) {
+            let [d] = one([row(i)?], x);
+            *o = f(i, d);
+            i += 1;
         }
         Ok(())
     }
@@ -272,7 +248,8 @@ impl<'a> GatedOp<'a> for CpLayer<'a> {
     }
 
     /// `rank >= 1` (`UnsupportedParameter`); `weight_section`: `B^T`,
-    /// `rank x in` weights; `a`: `out x rank` weights; `cores`:
+    /// `rank` rows of `in` weights; `a`: `out` rows of `rank` weights (rows
+    /// padded to 4 bytes for `I8Interleaved`, as a dense layer's); `cores`:
     /// `experts x rank` i16; `mid`: `rank` records; then biases and records.
     fn bind(payload: &'a [u8], desc: LayerDesc, index: u8) -> Result<Self> {
         let LayerOp::Cp {
@@ -284,17 +261,15 @@ impl<'a> GatedOp<'a> for CpLayer<'a> {
         else {
             return Err(Error::UnsupportedParameter { layer: index });
         };
-        let (WeightFormat::I8 | WeightFormat::I16) = desc.weights else {
-            return Err(Error::UnsupportedParameter { layer: index });
-        };
         if rank == 0 {
             return Err(Error::UnsupportedParameter { layer: index });
         }
         check_dims(&desc, index)?;
         let s = Sections::new(payload, index);
-        let (r, wb) = (u64::from(rank), desc.weights.bytes() as u64);
-        let bt = s.get(desc.weight_section, r * u64::from(desc.in_dim) * wb)?;
-        let a = s.get(a, u64::from(desc.out_dim) * r * wb)?;
+        let r = u64::from(rank);
+        let row_bytes = |len: u16| desc.weights.row_bytes(usize::from(len)) as u64;
+        let bt = s.get(desc.weight_section, r * row_bytes(desc.in_dim))?;
+        let a = s.get(a, u64::from(desc.out_dim) * row_bytes(rank))?;
         let cores = s.get(cores, u64::from(desc.experts) * r * 2)?;
         let mid = s.get(mid, r * MID_RECORD_LEN as u64)?;
         let (bias, requant) = s.rows(&desc)?;
@@ -330,7 +305,10 @@ impl<'a> GatedOp<'a> for CpLayer<'a> {
             usize::from(self.desc.in_dim),
             usize::from(self.desc.out_dim),
         );
-        let wb = self.wb();
+        let (bt_rb, a_rb) = (
+            self.desc.weights.row_bytes(n_in),
+            self.desc.weights.row_bytes(rank),
+        );
         let narrow = self.desc.acc == AccWidth::I32;
         let overflow = |row: usize| Error::AccumulatorOverflow {
             layer: li,
@@ -340,15 +318,10 @@ impl<'a> GatedOp<'a> for CpLayer<'a> {
         let g1 = gate_l1_max(gating) as u128;
         let i32_max = i32::MAX as u128;
         let recs = self.mid.as_chunks::<MID_RECORD_LEN>().0;
-        if recs.len() != rank || self.bt.len() != rank * n_in * wb {
+        if recs.len() != rank || self.bt.len() != rank * bt_rb {
             return Err(Error::SectionLength { layer: li });
         }
-        for (r, (row, rec)) in self
-            .bt
-            .chunks_exact((n_in * wb).max(1))
-            .zip(recs)
-            .enumerate()
-        {
+        for (r, (row, rec)) in self.bt.chunks_exact(bt_rb.max(1)).zip(recs).enumerate() {
             let rec = MidRecord::from_bytes(rec).ok_or(bad)?;
             if rec.t_shift > Requant::MAX_SHIFT
                 || rec.pre_shift > Requant::MAX_SHIFT
@@ -372,16 +345,11 @@ impl<'a> GatedOp<'a> for CpLayer<'a> {
             }
         }
         let recs = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
-        if recs.len() != out || self.a.len() != out * rank * wb {
+        if recs.len() != out || self.a.len() != out * a_rb {
             return Err(Error::SectionLength { layer: li });
         }
         let width = self.desc.acc.bytes();
-        for (i, (row, rec)) in self
-            .a
-            .chunks_exact((rank * wb).max(1))
-            .zip(recs)
-            .enumerate()
-        {
+        for (i, (row, rec)) in self.a.chunks_exact(a_rb.max(1)).zip(recs).enumerate() {
             let rec = requant_record(rec, self.desc.activation, li)?;
             let s = u128::from(row_l1(row, self.desc.weights)) << 15;
             if narrow && s > u128::from(I32_ROW_BOUND) {
@@ -620,8 +588,11 @@ pub(crate) mod case {
     impl OpCase for Cp {
         type Op<'a> = CpLayer<'a>;
 
-        fn random(rng: &mut Rng, shape: Shape, gating: Gating) -> Self {
-            let rank = rng.range(1, 20) as usize;
+        fn random(rng: &mut Rng, mut shape: Shape, gating: Gating) -> Self {
+            if shape.weights == WeightFormat::I8 && rng.chance(50) {
+                shape.weights = WeightFormat::I8Interleaved;
+            }
+            let rank = rng.range(1, 40) as usize;
             let narrow = shape.acc == AccWidth::I32;
             let mut bt = shape.weights(rng, rank * shape.in_dim);
             let mut a = shape.weights(rng, shape.out_dim * rank);
@@ -673,8 +644,8 @@ pub(crate) mod case {
                 cores: none,
                 mid: none,
             });
-            d.weight_section = p.weights(&self.bt, f);
-            let a = p.weights(&self.a, f);
+            d.weight_section = p.rows(&self.bt, self.rows.shape.in_dim, f);
+            let a = p.rows(&self.a, self.rank, f);
             let cores = p.push(
                 &self
                     .cores
