@@ -23,11 +23,15 @@ use crate::blob::records::bias_at;
 use crate::blob::REQUANT_RECORD_LEN;
 use crate::blob::{AccWidth, Gating, LayerDesc, LayerOp, Requant};
 use crate::error::{Error, Result};
-use crate::fixed::gate::{Gate, ONE};
+use crate::fixed::gate::{Gate, MAX_ACTIVE, ONE};
 use crate::fixed::{round_shift, sat_i16, sat_i32};
 
 /// Bytes of one middle record.
 pub const MID_RECORD_LEN: usize = 8;
+
+/// Rows whose dot products a stage takes before finishing them (a
+/// 256-byte buffer on the stack).
+const CHUNK: usize = 32;
 
 /// How one rank component turns `t_r * c_r` into the i16 `z_r`:
 /// `z = sat16(round(sat32(round(sat32(round(t >> t_shift)) * c >> pre)) * multiplier >> post))`,
@@ -77,7 +81,7 @@ impl MidRecord {
     #[inline(always)]
     pub fn apply(&self, t: i64, c: i64) -> i16 {
         let t = i64::from(sat_i32(round_shift(t, self.t_shift)));
-        // |t| <= 2^31 and |c| <= 2^17 (see `blend_core`): no overflow.
+        // |t| <= 2^31 and |c| <= 2^17 (see `CpLayer::middle`): no overflow.
         let p = i64::from(sat_i32(round_shift(t * c, self.pre_shift)));
         sat_i16(round_shift(p * i64::from(self.multiplier), self.post_shift))
     }
@@ -95,17 +99,59 @@ pub fn gate_l1_max(gating: &Gating) -> i64 {
     }
 }
 
-/// The core of component `r` blended by `gate`, in core units:
-/// `round(sum_k g_k d_k[r] / 2^16)`. With `sum_k |g_k| <= gate_l1_max < 2^17`
-/// and |d| <= 2^15, the result is below 2^17 in magnitude.
-#[inline(always)]
-pub fn blend_core(cores: &[u8], rank: usize, gate: &Gate, r: usize) -> i64 {
-    let mut c = 0i64;
-    for (e, g) in gate.iter() {
-        let d = i16_at(cores, usize::from(e) * rank + r).unwrap_or(0);
-        c += i64::from(g) * i64::from(d);
+/// The gate's active experts, in gate order: where each expert's entries
+/// start in a table of `rows` entries per expert, and its Q16 coefficient.
+/// Taken once per stage, so that the per-row blends index flat arrays.
+struct Active {
+    n: usize,
+    first: [usize; MAX_ACTIVE],
+    g: [i32; MAX_ACTIVE],
+}
+
+impl Active {
+    fn new(gate: &Gate, rows: usize) -> Active {
+        let mut a = Active {
+            n: gate.len().min(MAX_ACTIVE),
+            first: [0; MAX_ACTIVE],
+            g: [0; MAX_ACTIVE],
+        };
+        for ((e, g), (first, coef)) in gate.iter().zip(a.first.iter_mut().zip(&mut a.g)) {
+            (*first, *coef) = (usize::from(e) * rows, g);
+        }
+        a
     }
-    round_shift(c, 16)
+
+    /// `acc[j] += sum_k g_k table[first_k + i + j]` for every `j`, expert
+    /// after expert in gate order (an entry outside the table adds 0; the
+    /// loader proved the tables' lengths): a tight loop per expert.
+    /// Wrapping: the callers' bounds keep every sum far below 2^63, so the
+    /// order of the additions does not matter.
+    #[inline(always)]
+    fn blend_into<const B: usize>(
+        &self,
+        table: &[[u8; B]],
+        i: usize,
+        read: fn([u8; B]) -> i32,
+        acc: &mut [i64],
+    ) {
+        for (&first, &g) in self.first.iter().zip(&self.g).take(self.n) {
+            let entries = table.get(first + i..).unwrap_or(&[]);
+            for (a, b) in acc.iter_mut().zip(entries) {
+                // One `SMLAL`: both factors are 32-bit.
+                *a = a.wrapping_add(i64::from(read(*b)) * i64::from(g));
+            }
+        }
+    }
+}
+
+/// A core, i16 LE.
+fn core_value(b: [u8; 2]) -> i32 {
+    i32::from(i16::from_le_bytes(b))
+}
+
+/// A 32-bit bias, i32 LE.
+fn bias32_value(b: [u8; 4]) -> i32 {
+    i32::from_le_bytes(b)
 }
 
 /// A validated CP layer: its descriptor and its payload sections.
@@ -151,10 +197,23 @@ impl<'a> CpLayer<'a> {
             pre_shift: 0,
             post_shift: 0,
         };
-        self.each_dot(self.bt, x, z, |r, t| {
-            let c = blend_core(self.cores, rank, gate, r);
-            let rec = recs.get(r).and_then(MidRecord::from_bytes).unwrap_or(none);
-            rec.apply(t, c)
+        let cores = self.cores.as_chunks::<2>().0;
+        let active = Active::new(gate, rank);
+        let mut blended = [0i64; CHUNK];
+        self.each_chunk(self.bt, x, z, |first, ts, zs| {
+            let recs = recs.get(first..).unwrap_or(&[]);
+            // The blended cores `round(sum_k g_k d_k[r] / 2^16)`: with
+            // `sum_k |g_k| <= gate_l1_max < 2^17` and `|d| <= 2^15`, below
+            // 2^17 in magnitude.
+            let Some(cs) = blended.get_mut(..ts.len()) else {
+                return;
+            };
+            cs.fill(0);
+            active.blend_into(cores, first, core_value, cs);
+            for (((zr, &t), &c), rec) in zs.iter_mut().zip(ts.iter()).zip(cs.iter()).zip(recs) {
+                let c = round_shift(c, 16);
+                *zr = MidRecord::from_bytes(rec).unwrap_or(none).apply(t, c);
+            }
         })
     }
 
@@ -177,59 +236,68 @@ impl<'a> CpLayer<'a> {
         let l1: u64 = gate.iter().map(|(_, g)| u64::from(g.unsigned_abs())).sum();
         let exact = self.desc.acc == AccWidth::I32 && l1 < 1 << 31;
         let activation = self.desc.activation;
-        self.each_dot(self.a, z, y, |i, acc| {
-            let mut total;
+        let active = Active::new(gate, out);
+        self.each_chunk(self.a, z, y, |first, totals, ys| {
+            let recs = recs.get(first..).unwrap_or(&[]);
             if exact {
-                total = acc.wrapping_mul(i64::from(ONE));
-                for (e, g) in gate.iter() {
-                    let at = usize::from(e) * out + i;
-                    let b = bias32.get(at).map_or(0, |c| i32::from_le_bytes(*c));
-                    total = total.wrapping_add(i64::from(b).wrapping_mul(i64::from(g)));
-                }
+                totals
+                    .iter_mut()
+                    .for_each(|t| *t = t.wrapping_mul(i64::from(ONE)));
+                active.blend_into(bias32, first, bias32_value, totals);
             } else {
-                total = acc.saturating_mul(i64::from(ONE));
-                for (e, g) in gate.iter() {
-                    let b = bias_at(self.bias, width, usize::from(e) * out + i).unwrap_or(0);
-                    total = total.saturating_add(b.saturating_mul(i64::from(g)));
+                for (k, t) in totals.iter_mut().enumerate() {
+                    let mut total = t.saturating_mul(i64::from(ONE));
+                    for (e, g) in gate.iter() {
+                        let at = usize::from(e) * out + first + k;
+                        let b = bias_at(self.bias, width, at).unwrap_or(0);
+                        total = total.saturating_add(b.saturating_mul(i64::from(g)));
+                    }
+                    *t = total;
                 }
             }
-            let rec = recs.get(i).unwrap_or(&[0; REQUANT_RECORD_LEN]);
-            finish_row(total, rec, activation)
+            for ((yi, &total), rec) in ys.iter_mut().zip(totals.iter()).zip(recs) {
+                *yi = finish_row(total, rec, activation);
+            }
         })
     }
 
-    /// `out[i] = f(i, row_i . x)` for every row of `matrix` (rows of
-    /// `x.len()` weights in the layer's format), two rows per pass over
-    /// `x` where the format's kernel has a two-row loop (the dense
-    /// layer's kernels: the DSP loops on Armv7E-M).
+    /// The dot products of every row of `matrix` (rows of `x.len()`
+    /// weights in the layer's format) with `x`, [`CHUNK`] rows at a time,
+    /// each chunk handed to `finish(first row, dots, out rows)` (which may
+    /// reuse the dots' buffer): two rows
+    /// per pass over `x` where the format's kernel has a two-row loop (the
+    /// dense layer's kernels: the DSP loops on Armv7E-M), and the per-row
+    /// work in one tight loop rather than a call per row.
     #[inline(always)]
-    fn each_dot(
+    fn each_chunk(
         &self,
         matrix: &[u8],
         x: &[i16],
         out: &mut [i16],
-        mut f: impl FnMut(usize, i64) -> i16,
+        mut finish: impl FnMut(usize, &mut [i64], &mut [i16]),
     ) -> Result<()> {
         let (one, two) = matrix_kernel(self.desc.weights, self.desc.acc);
-        let rb = self.desc.weights.row_bytes(x.len());
-        let row = |i: usize| {
-            matrix
-                .get(i * rb..(i + 1) * rb)
-                .ok_or(Error::SectionLength { layer: self.index })
-        };
-        let mut i = 0;
-        if let Some(two) = two {
-            let (pairs, _) = out.as_chunks_mut::<2>();
-            for pair in pairs {
-                let [d0, d1] = two([row(i)?, row(i + 1)?], x);
-                *pair = [f(i, d0), f(i + 1, d1)];
-                i += 2;
+        let rb = self.desc.weights.row_bytes(x.len()).max(1);
+        let short = Error::SectionLength { layer: self.index };
+        let mut rows = matrix.chunks_exact(rb);
+        let mut buffer = [0i64; CHUNK];
+        for (c, chunk) in out.chunks_mut(CHUNK).enumerate() {
+            let dots = buffer.get_mut(..chunk.len()).ok_or(short)?;
+            let mut done = 0;
+            if let Some(two) = two {
+                let (pairs, _) = dots.as_chunks_mut::<2>();
+                for pair in pairs {
+                    let (Some(r0), Some(r1)) = (rows.next(), rows.next()) else {
+                        return Err(short);
+                    };
+                    *pair = two([r0, r1], x);
+                    done += 2;
+                }
             }
-        }
-        for o in out.iter_mut().skip(i) {
-            let [d] = one([row(i)?], x);
-            *o = f(i, d);
-            i += 1;
+            for d in dots.iter_mut().skip(done) {
+                [*d] = one([rows.next().ok_or(short)?], x);
+            }
+            finish(c * CHUNK, dots, chunk);
         }
         Ok(())
     }
