@@ -18,6 +18,10 @@ use super::common::{
     I32_ROW_BOUND,
 };
 use super::dense::matrix_kernel;
+
+/// The on-target check of the CP glue (`kernel-check` feature).
+#[cfg(all(feature = "kernel-check", phasegate_dsp))]
+mod check;
 use super::GatedOp;
 use crate::blob::records::bias_at;
 use crate::blob::REQUANT_RECORD_LEN;
@@ -25,6 +29,8 @@ use crate::blob::{AccWidth, Gating, LayerDesc, LayerOp, Requant};
 use crate::error::{Error, Result};
 use crate::fixed::gate::{Gate, MAX_ACTIVE, ONE};
 use crate::fixed::{round_shift, sat_i16, sat_i32};
+#[cfg(all(feature = "kernel-check", phasegate_dsp))]
+pub use check::cp_check;
 
 /// Bytes of one middle record.
 pub const MID_RECORD_LEN: usize = 8;
