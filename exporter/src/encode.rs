@@ -310,14 +310,21 @@ fn layer_sections(payload: &mut Payload, l: &QLayer, i: usize) -> Result<LayerDe
                     what: "cores",
                 });
             }
+            // Both factors are one matrix each for the dense kernels: int8
+            // ones go in the DSP kernel's order when the rows of either
+            // (`in` wide for `B^T`, `rank` wide for `A`) reach its block
+            // of 16 inputs.
+            if d.weights == WeightFormat::I8 && inp.max(r) >= 16 {
+                desc.weights = WeightFormat::I8Interleaved;
+            }
             let bt = payload.push(&weight_bytes(
                 &l.weights,
-                d.weights,
+                desc.weights,
                 (r * inp, inp),
                 i,
                 "B",
             )?)?;
-            let a = payload.push(&weight_bytes(&cp.a, d.weights, (out * r, r), i, "A")?)?;
+            let a = payload.push(&weight_bytes(&cp.a, desc.weights, (out * r, r), i, "A")?)?;
             let cores: Vec<u8> = cp.cores.iter().flat_map(|c| c.to_le_bytes()).collect();
             let cores = payload.push(&cores)?;
             let mid: Vec<u8> = cp.mid.iter().flat_map(MidRecord::to_bytes).collect();

@@ -104,12 +104,19 @@ fn first_fit(bufs: &[Buffer], order: &[usize]) -> (Vec<usize>, usize) {
             .collect();
         taken.sort_unstable();
         let len = usize::from(b.span.len);
+        // A CP layer's middle vector starts on a word (an even element of
+        // the 8-aligned arena): the DSP kernel's block loop reads its
+        // inputs by words, and falls back to its slow tail otherwise.
+        let align = |at: usize| match b.role {
+            Role::Scratch(_) => at.next_multiple_of(2),
+            _ => at,
+        };
         let mut at = 0;
         for (start, stop) in taken {
             if at + len <= start {
                 break;
             }
-            at = at.max(stop);
+            at = align(at.max(stop));
         }
         offsets[i] = at;
         end = end.max(at + len);

@@ -15,10 +15,8 @@ fn blobs() -> Vec<PathBuf> {
         .iter()
         .map(|c| root.join("golden").join(c).join("model.blob"))
         .collect();
-    // Blobs of earlier format versions and layouts (plain int8 rows).
-    for f in ["example-v1.blob", "example-v2.blob", "cp-diagonal-v1.blob"] {
-        v.push(root.join("fixtures").join(f));
-    }
+    // A blob of the plain int8 layout (before `I8Interleaved`).
+    v.push(root.join("fixtures").join("example-v2.blob"));
     v
 }
 
@@ -32,7 +30,11 @@ fn every_model_kind_performs_exactly_the_header_macs() {
         let want = u64::from(model.macs_per_frame());
         for n in model.header().nodes.iter() {
             kinds.insert(match n.layer() {
-                Some(l) => format!("{:?}", l.op).split([' ', '{']).next().unwrap().to_string(),
+                Some(l) => format!("{:?}", l.op)
+                    .split([' ', '{'])
+                    .next()
+                    .unwrap()
+                    .to_string(),
                 None => "Softmax".to_string(),
             });
         }

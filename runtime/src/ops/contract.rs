@@ -809,7 +809,7 @@ macro_rules! op_contract {
     };
 }
 
-// Dense layers also read `I8Interleaved`.
+// Dense and CP layers also read `I8Interleaved`.
 op_contract!(dense, crate::ops::dense::case::Dense, 3);
-op_contract!(cp, crate::ops::cp::case::Cp, 2);
+op_contract!(cp, crate::ops::cp::case::Cp, 3);
 op_contract!(diagonal, crate::ops::diagonal::case::Diagonal, 2);

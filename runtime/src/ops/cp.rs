@@ -17,16 +17,27 @@ use super::common::{
     check_dims, finish_row, i16_at, requant_record, row_l1, too_short, too_small, Sections,
     I32_ROW_BOUND,
 };
+use super::dense::matrix_kernel;
+
+/// The on-target check of the CP glue (`kernel-check` feature).
+#[cfg(all(feature = "kernel-check", phasegate_dsp))]
+mod check;
 use super::GatedOp;
 use crate::blob::records::bias_at;
 use crate::blob::REQUANT_RECORD_LEN;
-use crate::blob::{AccWidth, Gating, LayerDesc, LayerOp, Requant, WeightFormat};
+use crate::blob::{AccWidth, Gating, LayerDesc, LayerOp, Requant};
 use crate::error::{Error, Result};
-use crate::fixed::gate::{Gate, ONE};
+use crate::fixed::gate::{Gate, MAX_ACTIVE, ONE};
 use crate::fixed::{round_shift, sat_i16, sat_i32};
+#[cfg(all(feature = "kernel-check", phasegate_dsp))]
+pub use check::cp_check;
 
 /// Bytes of one middle record.
 pub const MID_RECORD_LEN: usize = 8;
+
+/// Rows whose dot products a stage takes before finishing them (a
+/// 256-byte buffer on the stack).
+const CHUNK: usize = 32;
 
 /// How one rank component turns `t_r * c_r` into the i16 `z_r`:
 /// `z = sat16(round(sat32(round(sat32(round(t >> t_shift)) * c >> pre)) * multiplier >> post))`,
@@ -76,7 +87,7 @@ impl MidRecord {
     #[inline(always)]
     pub fn apply(&self, t: i64, c: i64) -> i16 {
         let t = i64::from(sat_i32(round_shift(t, self.t_shift)));
-        // |t| <= 2^31 and |c| <= 2^17 (see `blend_core`): no overflow.
+        // |t| <= 2^31 and |c| <= 2^17 (see `CpLayer::middle`): no overflow.
         let p = i64::from(sat_i32(round_shift(t * c, self.pre_shift)));
         sat_i16(round_shift(p * i64::from(self.multiplier), self.post_shift))
     }
@@ -94,53 +105,63 @@ pub fn gate_l1_max(gating: &Gating) -> i64 {
     }
 }
 
-/// The core of component `r` blended by `gate`, in core units:
-/// `round(sum_k g_k d_k[r] / 2^16)`. With `sum_k |g_k| <= gate_l1_max < 2^17`
-/// and |d| <= 2^15, the result is below 2^17 in magnitude.
-#[inline(always)]
-pub fn blend_core(cores: &[u8], rank: usize, gate: &Gate, r: usize) -> i64 {
-    let mut c = 0i64;
-    for (e, g) in gate.iter() {
-        let d = i16_at(cores, usize::from(e) * rank + r).unwrap_or(0);
-        c += i64::from(g) * i64::from(d);
-    }
-    round_shift(c, 16)
+/// The gate's active experts, in gate order: where each expert's entries
+/// start in a table of `rows` entries per expert, and its Q16 coefficient.
+/// Taken once per stage, so that the per-row blends index flat arrays.
+struct Active {
+    n: usize,
+    first: [usize; MAX_ACTIVE],
+    g: [i32; MAX_ACTIVE],
 }
 
-/// `sum_j w_j x_j` of a row of `WB`-byte weights; `WIDE` selects the i64
-/// accumulator, else i32 (which the loader proved cannot wrap).
-#[inline(always)]
-fn dot<const WB: usize, const WIDE: bool>(row: &[u8], x: &[i16]) -> i64 {
-    if WB == 1 {
-        if WIDE {
-            let mut a = 0i64;
-            for (&w, &v) in row.iter().zip(x) {
-                a += i64::from(i32::from(w as i8) * i32::from(v));
-            }
-            a
-        } else {
-            let mut a = 0i32;
-            for (&w, &v) in row.iter().zip(x) {
-                a = a.wrapping_add(i32::from(w as i8) * i32::from(v));
-            }
-            i64::from(a)
+impl Active {
+    fn new(gate: &Gate, rows: usize) -> Active {
+        let mut a = Active {
+            n: gate.len().min(MAX_ACTIVE),
+            first: [0; MAX_ACTIVE],
+            g: [0; MAX_ACTIVE],
+        };
+        for ((e, g), (first, coef)) in gate.iter().zip(a.first.iter_mut().zip(&mut a.g)) {
+            (*first, *coef) = (usize::from(e) * rows, g);
         }
-    } else {
-        let pairs = row.as_chunks::<2>().0;
-        if WIDE {
-            let mut a = 0i64;
-            for (w, &v) in pairs.iter().zip(x) {
-                a += i64::from(i32::from(i16::from_le_bytes(*w)) * i32::from(v));
-            }
-            a
-        } else {
-            let mut a = 0i32;
-            for (w, &v) in pairs.iter().zip(x) {
-                a = a.wrapping_add(i32::from(i16::from_le_bytes(*w)) * i32::from(v));
-            }
-            i64::from(a)
-        }
+        a
     }
+
+    /// `acc[j] += sum_k g_k table[first_k + i + j]` for every `j`, expert
+    /// after expert in gate order (an entry outside the table adds 0; the
+    /// loader proved the tables' lengths): a tight loop per expert. Returns
+    /// the multiply-accumulates done ([`crate::mac_count`]).
+    /// Wrapping: the callers' bounds keep every sum far below 2^63, so the
+    /// order of the additions does not matter.
+    #[inline(always)]
+    fn blend_into<const B: usize>(
+        &self,
+        table: &[[u8; B]],
+        i: usize,
+        read: fn([u8; B]) -> i32,
+        acc: &mut [i64],
+    ) -> usize {
+        let mut macs = 0;
+        for (&first, &g) in self.first.iter().zip(&self.g).take(self.n) {
+            let entries = table.get(first + i..).unwrap_or(&[]);
+            for (a, b) in acc.iter_mut().zip(entries) {
+                // One `SMLAL`: both factors are 32-bit.
+                *a = a.wrapping_add(i64::from(read(*b)) * i64::from(g));
+                macs += 1;
+            }
+        }
+        macs
+    }
+}
+
+/// A core, i16 LE.
+fn core_value(b: [u8; 2]) -> i32 {
+    i32::from(i16::from_le_bytes(b))
+}
+
+/// A 32-bit bias, i32 LE.
+fn bias32_value(b: [u8; 4]) -> i32 {
+    i32::from_le_bytes(b)
 }
 
 /// A validated CP layer: its descriptor and its payload sections.
@@ -150,9 +171,9 @@ pub struct CpLayer<'a> {
     pub desc: LayerDesc,
     /// Rank `R`.
     pub rank: u16,
-    /// `B^T`: `rank x in` weights.
+    /// `B^T`: `rank` rows of `in` weights, in the layer's weight format.
     pub bt: &'a [u8],
-    /// `A`: `out x rank` weights.
+    /// `A`: `out` rows of `rank` weights, in the layer's weight format.
     pub a: &'a [u8],
     /// `experts x rank` i16 cores.
     pub cores: &'a [u8],
@@ -167,10 +188,6 @@ pub struct CpLayer<'a> {
 }
 
 impl<'a> CpLayer<'a> {
-    fn wb(&self) -> usize {
-        self.desc.weights.bytes()
-    }
-
     fn rank(&self) -> usize {
         usize::from(self.rank)
     }
@@ -178,82 +195,121 @@ impl<'a> CpLayer<'a> {
     /// Stage one: `z = requant_mid((B^T x) . c)`; `x` has `in_dim` elements,
     /// `z` at least `rank`.
     pub fn middle(&self, gate: &Gate, x: &[i16], z: &mut [i16]) -> Result<()> {
-        match (self.desc.weights, self.desc.acc) {
-            (WeightFormat::I8 | WeightFormat::I8Interleaved, AccWidth::I32) => {
-                self.middle_typed::<1, false>(gate, x, z)
-            }
-            (WeightFormat::I8 | WeightFormat::I8Interleaved, AccWidth::I64) => {
-                self.middle_typed::<1, true>(gate, x, z)
-            }
-            (WeightFormat::I16, AccWidth::I32) => self.middle_typed::<2, false>(gate, x, z),
-            (WeightFormat::I16, AccWidth::I64) => self.middle_typed::<2, true>(gate, x, z),
-        }
-    }
-
-    fn middle_typed<const WB: usize, const WIDE: bool>(
-        &self,
-        gate: &Gate,
-        x: &[i16],
-        z: &mut [i16],
-    ) -> Result<()> {
         let n_in = usize::from(self.desc.in_dim);
         let rank = self.rank();
         let x = x.get(..n_in).ok_or(too_short(n_in, x.len()))?;
         let capacity = z.len();
         let z = z.get_mut(..rank).ok_or(too_small(rank, capacity))?;
-        let rows = self.bt.chunks_exact((n_in * WB).max(1));
         let recs = self.mid.as_chunks::<MID_RECORD_LEN>().0;
-        for (r, ((zr, row), rec)) in z.iter_mut().zip(rows).zip(recs).enumerate() {
-            let t = dot::<WB, WIDE>(row, x);
-            let c = blend_core(self.cores, rank, gate, r);
-            let rec = MidRecord::from_bytes(rec).unwrap_or(MidRecord {
-                multiplier: 0,
-                t_shift: 0,
-                pre_shift: 0,
-                post_shift: 0,
-            });
-            *zr = rec.apply(t, c);
-        }
-        Ok(())
+        let none = MidRecord {
+            multiplier: 0,
+            t_shift: 0,
+            pre_shift: 0,
+            post_shift: 0,
+        };
+        let cores = self.cores.as_chunks::<2>().0;
+        let active = Active::new(gate, rank);
+        let mut blended = [0i64; CHUNK];
+        self.each_chunk(self.bt, x, z, |first, ts, zs| {
+            let recs = recs.get(first..).unwrap_or(&[]);
+            // The blended cores `round(sum_k g_k d_k[r] / 2^16)`: with
+            // `sum_k |g_k| <= gate_l1_max < 2^17` and `|d| <= 2^15`, below
+            // 2^17 in magnitude.
+            let Some(cs) = blended.get_mut(..ts.len()) else {
+                return;
+            };
+            cs.fill(0);
+            // The core blend is part of the layer's MACs; the bias blend
+            // below is not (as a dense layer's).
+            crate::mac_count::add(active.blend_into(cores, first, core_value, cs));
+            for (((zr, &t), &c), rec) in zs.iter_mut().zip(ts.iter()).zip(cs.iter()).zip(recs) {
+                let c = round_shift(c, 16);
+                *zr = MidRecord::from_bytes(rec).unwrap_or(none).apply(t, c);
+            }
+        })
     }
 
     /// Stage two: `y = act(requant(2^16 A z + sum_k g_k b_k))`; `z` has
     /// `rank` elements, `y` at least `out_dim`.
     pub fn output(&self, gate: &Gate, z: &[i16], y: &mut [i16]) -> Result<()> {
-        match (self.desc.weights, self.desc.acc) {
-            (WeightFormat::I8 | WeightFormat::I8Interleaved, AccWidth::I32) => {
-                self.output_typed::<1, false>(gate, z, y)
-            }
-            (WeightFormat::I8 | WeightFormat::I8Interleaved, AccWidth::I64) => {
-                self.output_typed::<1, true>(gate, z, y)
-            }
-            (WeightFormat::I16, AccWidth::I32) => self.output_typed::<2, false>(gate, z, y),
-            (WeightFormat::I16, AccWidth::I64) => self.output_typed::<2, true>(gate, z, y),
-        }
-    }
-
-    fn output_typed<const WB: usize, const WIDE: bool>(
-        &self,
-        gate: &Gate,
-        z: &[i16],
-        y: &mut [i16],
-    ) -> Result<()> {
         let rank = self.rank();
         let out = usize::from(self.desc.out_dim);
         let z = z.get(..rank).ok_or(too_short(rank, z.len()))?;
         let capacity = y.len();
         let y = y.get_mut(..out).ok_or(too_small(out, capacity))?;
         let width = self.desc.acc.bytes();
-        let rows = self.a.chunks_exact((rank * WB).max(1));
         let recs = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
-        for (i, ((yi, row), rec)) in y.iter_mut().zip(rows).zip(recs).enumerate() {
-            let acc = dot::<WB, WIDE>(row, z);
-            let mut total = acc.saturating_mul(i64::from(ONE));
-            for (e, g) in gate.iter() {
-                let b = bias_at(self.bias, width, usize::from(e) * out + i).unwrap_or(0);
-                total = total.saturating_add(b.saturating_mul(i64::from(g)));
+        let bias32 = self.bias.as_chunks::<4>().0;
+        // With 32-bit accumulators and biases, `|2^16 acc| < 2^47` and
+        // `sum_k |g_k b_k| <= 2^31 sum_k |g_k| < 2^62` when the gate's L1
+        // norm is below 2^31: no saturation can act, so plain i64
+        // arithmetic gives the saturating blend's bits without the M4's
+        // costly overflow checks (as in the dense layer).
+        let l1: u64 = gate.iter().map(|(_, g)| u64::from(g.unsigned_abs())).sum();
+        let exact = self.desc.acc == AccWidth::I32 && l1 < 1 << 31;
+        let activation = self.desc.activation;
+        let active = Active::new(gate, out);
+        self.each_chunk(self.a, z, y, |first, totals, ys| {
+            let recs = recs.get(first..).unwrap_or(&[]);
+            if exact {
+                totals
+                    .iter_mut()
+                    .for_each(|t| *t = t.wrapping_mul(i64::from(ONE)));
+                let _ = active.blend_into(bias32, first, bias32_value, totals);
+            } else {
+                for (k, t) in totals.iter_mut().enumerate() {
+                    let mut total = t.saturating_mul(i64::from(ONE));
+                    for (e, g) in gate.iter() {
+                        let at = usize::from(e) * out + first + k;
+                        let b = bias_at(self.bias, width, at).unwrap_or(0);
+                        total = total.saturating_add(b.saturating_mul(i64::from(g)));
+                    }
+                    *t = total;
+                }
             }
-            *yi = finish_row(total, rec, self.desc.activation);
+            for ((yi, &total), rec) in ys.iter_mut().zip(totals.iter()).zip(recs) {
+                *yi = finish_row(total, rec, activation);
+            }
+        })
+    }
+
+    /// The dot products of every row of `matrix` (rows of `x.len()`
+    /// weights in the layer's format) with `x`, [`CHUNK`] rows at a time,
+    /// each chunk handed to `finish(first row, dots, out rows)` (which may
+    /// reuse the dots' buffer): two rows
+    /// per pass over `x` where the format's kernel has a two-row loop (the
+    /// dense layer's kernels: the DSP loops on Armv7E-M), and the per-row
+    /// work in one tight loop rather than a call per row.
+    #[inline(always)]
+    fn each_chunk(
+        &self,
+        matrix: &[u8],
+        x: &[i16],
+        out: &mut [i16],
+        mut finish: impl FnMut(usize, &mut [i64], &mut [i16]),
+    ) -> Result<()> {
+        let (one, two) = matrix_kernel(self.desc.weights, self.desc.acc);
+        let rb = self.desc.weights.row_bytes(x.len()).max(1);
+        let short = Error::SectionLength { layer: self.index };
+        let mut rows = matrix.chunks_exact(rb);
+        let mut buffer = [0i64; CHUNK];
+        for (c, chunk) in out.chunks_mut(CHUNK).enumerate() {
+            let dots = buffer.get_mut(..chunk.len()).ok_or(short)?;
+            let mut done = 0;
+            if let Some(two) = two {
+                let (pairs, _) = dots.as_chunks_mut::<2>();
+                for pair in pairs {
+                    let (Some(r0), Some(r1)) = (rows.next(), rows.next()) else {
+                        return Err(short);
+                    };
+                    *pair = two([r0, r1], x);
+                    done += 2;
+                }
+            }
+            for d in dots.iter_mut().skip(done) {
+                [*d] = one([rows.next().ok_or(short)?], x);
+            }
+            finish(c * CHUNK, dots, chunk);
         }
         Ok(())
     }
@@ -272,7 +328,8 @@ impl<'a> GatedOp<'a> for CpLayer<'a> {
     }
 
     /// `rank >= 1` (`UnsupportedParameter`); `weight_section`: `B^T`,
-    /// `rank x in` weights; `a`: `out x rank` weights; `cores`:
+    /// `rank` rows of `in` weights; `a`: `out` rows of `rank` weights (rows
+    /// padded to 4 bytes for `I8Interleaved`, as a dense layer's); `cores`:
     /// `experts x rank` i16; `mid`: `rank` records; then biases and records.
     fn bind(payload: &'a [u8], desc: LayerDesc, index: u8) -> Result<Self> {
         let LayerOp::Cp {
@@ -284,17 +341,15 @@ impl<'a> GatedOp<'a> for CpLayer<'a> {
         else {
             return Err(Error::UnsupportedParameter { layer: index });
         };
-        let (WeightFormat::I8 | WeightFormat::I16) = desc.weights else {
-            return Err(Error::UnsupportedParameter { layer: index });
-        };
         if rank == 0 {
             return Err(Error::UnsupportedParameter { layer: index });
         }
         check_dims(&desc, index)?;
         let s = Sections::new(payload, index);
-        let (r, wb) = (u64::from(rank), desc.weights.bytes() as u64);
-        let bt = s.get(desc.weight_section, r * u64::from(desc.in_dim) * wb)?;
-        let a = s.get(a, u64::from(desc.out_dim) * r * wb)?;
+        let r = u64::from(rank);
+        let row_bytes = |len: u16| desc.weights.row_bytes(usize::from(len)) as u64;
+        let bt = s.get(desc.weight_section, r * row_bytes(desc.in_dim))?;
+        let a = s.get(a, u64::from(desc.out_dim) * row_bytes(rank))?;
         let cores = s.get(cores, u64::from(desc.experts) * r * 2)?;
         let mid = s.get(mid, r * MID_RECORD_LEN as u64)?;
         let (bias, requant) = s.rows(&desc)?;
@@ -330,7 +385,10 @@ impl<'a> GatedOp<'a> for CpLayer<'a> {
             usize::from(self.desc.in_dim),
             usize::from(self.desc.out_dim),
         );
-        let wb = self.wb();
+        let (bt_rb, a_rb) = (
+            self.desc.weights.row_bytes(n_in),
+            self.desc.weights.row_bytes(rank),
+        );
         let narrow = self.desc.acc == AccWidth::I32;
         let overflow = |row: usize| Error::AccumulatorOverflow {
             layer: li,
@@ -340,15 +398,10 @@ impl<'a> GatedOp<'a> for CpLayer<'a> {
         let g1 = gate_l1_max(gating) as u128;
         let i32_max = i32::MAX as u128;
         let recs = self.mid.as_chunks::<MID_RECORD_LEN>().0;
-        if recs.len() != rank || self.bt.len() != rank * n_in * wb {
+        if recs.len() != rank || self.bt.len() != rank * bt_rb {
             return Err(Error::SectionLength { layer: li });
         }
-        for (r, (row, rec)) in self
-            .bt
-            .chunks_exact((n_in * wb).max(1))
-            .zip(recs)
-            .enumerate()
-        {
+        for (r, (row, rec)) in self.bt.chunks_exact(bt_rb.max(1)).zip(recs).enumerate() {
             let rec = MidRecord::from_bytes(rec).ok_or(bad)?;
             if rec.t_shift > Requant::MAX_SHIFT
                 || rec.pre_shift > Requant::MAX_SHIFT
@@ -372,16 +425,11 @@ impl<'a> GatedOp<'a> for CpLayer<'a> {
             }
         }
         let recs = self.requant.as_chunks::<REQUANT_RECORD_LEN>().0;
-        if recs.len() != out || self.a.len() != out * rank * wb {
+        if recs.len() != out || self.a.len() != out * a_rb {
             return Err(Error::SectionLength { layer: li });
         }
         let width = self.desc.acc.bytes();
-        for (i, (row, rec)) in self
-            .a
-            .chunks_exact((rank * wb).max(1))
-            .zip(recs)
-            .enumerate()
-        {
+        for (i, (row, rec)) in self.a.chunks_exact(a_rb.max(1)).zip(recs).enumerate() {
             let rec = requant_record(rec, self.desc.activation, li)?;
             let s = u128::from(row_l1(row, self.desc.weights)) << 15;
             if narrow && s > u128::from(I32_ROW_BOUND) {
@@ -620,8 +668,11 @@ pub(crate) mod case {
     impl OpCase for Cp {
         type Op<'a> = CpLayer<'a>;
 
-        fn random(rng: &mut Rng, shape: Shape, gating: Gating) -> Self {
-            let rank = rng.range(1, 20) as usize;
+        fn random(rng: &mut Rng, mut shape: Shape, gating: Gating) -> Self {
+            if shape.weights == WeightFormat::I8 && rng.chance(50) {
+                shape.weights = WeightFormat::I8Interleaved;
+            }
+            let rank = rng.range(1, 40) as usize;
             let narrow = shape.acc == AccWidth::I32;
             let mut bt = shape.weights(rng, rank * shape.in_dim);
             let mut a = shape.weights(rng, shape.out_dim * rank);
@@ -673,8 +724,8 @@ pub(crate) mod case {
                 cores: none,
                 mid: none,
             });
-            d.weight_section = p.weights(&self.bt, f);
-            let a = p.weights(&self.a, f);
+            d.weight_section = p.rows(&self.bt, self.rows.shape.in_dim, f);
+            let a = p.rows(&self.a, self.rank, f);
             let cores = p.push(
                 &self
                     .cores

@@ -233,7 +233,7 @@ struct Dots {
 }
 
 /// An `N`-row kernel.
-type Rows<const N: usize> = fn([&[u8]; N], &[i16]) -> [i64; N];
+pub(super) type Rows<const N: usize> = fn([&[u8]; N], &[i16]) -> [i64; N];
 
 impl Dots {
     /// Up to four experts per pass.
@@ -298,6 +298,22 @@ type Fast16 = Portable<W16, i32>;
 type Fast16L = dsp::Smlad<W16L, dsp::Asm>;
 #[cfg(not(phasegate_dsp))]
 type Fast16L = Portable<W16L, i64>;
+
+/// The kernels of one weight matrix (no experts: the factors of a CP
+/// layer), one and, where it has one, two rows per pass over `x`: the
+/// kernels a dense layer of the same formats runs (each row is
+/// `weights.row_bytes(x.len())` long).
+pub(super) fn matrix_kernel(weights: WeightFormat, acc: AccWidth) -> (Rows<1>, Option<Rows<2>>) {
+    let k = match (weights, acc) {
+        (WeightFormat::I8, AccWidth::I32) => Legacy8::dots(),
+        (WeightFormat::I8, AccWidth::I64) => Dots::one::<Portable<W8, i64>>(),
+        (WeightFormat::I8Interleaved, AccWidth::I32) => Dots::of::<Fast8>(),
+        (WeightFormat::I8Interleaved, AccWidth::I64) => Dots::one::<Portable<W8I, i64>>(),
+        (WeightFormat::I16, AccWidth::I32) => Dots::of::<Fast16>(),
+        (WeightFormat::I16, AccWidth::I64) => Dots::one::<Portable<W16, i64>>(),
+    };
+    (k.one, k.two)
+}
 
 impl<'a> DenseLayer<'a> {
     fn row_bytes(&self) -> usize {
