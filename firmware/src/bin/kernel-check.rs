@@ -40,7 +40,10 @@ fn main() -> ! {
             cp_bad += 1;
         }
     }
-    info!("CP check: {=u64} cases, {=u32} mismatches", CP_CASES, cp_bad);
+    info!(
+        "CP check: {=u64} cases, {=u32} mismatches",
+        CP_CASES, cp_bad
+    );
     bad += cp_bad;
     semihosting::process::exit(if bad == 0 { 0 } else { 1 })
 }
