@@ -10,8 +10,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, Context, Result};
-use exporter::net::omg::{omg_from_bytes, OmgNet, HEADROOM};
-use exporter::quantise::QuantOptions;
+use exporter::net::omg::{omg_from_bytes, OmgNet};
 use phasegate::blob::WeightFormat;
 
 use crate::omg::{diff, rollout, Diff, FixedOmg, FloatOmg, Mode};
@@ -66,11 +65,7 @@ pub fn reference_frames(n: usize) -> Result<crate::npy::Matrix<f32>> {
 /// The int8 blob `host-sim demo` runs (and the golden case
 /// `omg-tiny-fe-r1` holds).
 pub fn int8_blob(omg: &OmgNet) -> Result<Vec<u8>> {
-    let opts = QuantOptions {
-        weights: WeightFormat::I8,
-        headroom: HEADROOM,
-        ..QuantOptions::default()
-    };
+    let opts = crate::omg::exporter_options(WeightFormat::I8);
     Ok(exporter::export::export(&omg.net, None, &opts)?.0)
 }
 

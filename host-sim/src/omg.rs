@@ -486,6 +486,16 @@ pub fn fixed_agreement(d: &OmgDir, blob: &[u8], weights: &'static str) -> Result
     })
 }
 
+/// The quantiser options `exporter omg` uses when given only
+/// `--weight-bits`: `weights`, headroom [`exporter::net::omg::HEADROOM`].
+pub fn exporter_options(weights: WeightFormat) -> QuantOptions {
+    QuantOptions {
+        weights,
+        headroom: exporter::net::omg::HEADROOM,
+        ..QuantOptions::default()
+    }
+}
+
 /// Exports `d`'s model with `opts` at `weights`.
 pub fn export(d: &OmgDir, weights: WeightFormat, opts: &QuantOptions) -> Result<Vec<u8>> {
     let opts = QuantOptions {

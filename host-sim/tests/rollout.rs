@@ -208,16 +208,8 @@ fn omg_rollout_compare_and_render_end_to_end() {
     let dir = tempfile::tempdir().unwrap();
     let omg = repo().join("models/omg/tiny_fe_r1");
     let d = host_sim::omg::load_dir(&omg).unwrap();
-    let blob = host_sim::omg::export(
-        &d,
-        phasegate::blob::WeightFormat::I16,
-        // As `exporter omg` exports it.
-        &exporter::quantise::QuantOptions {
-            headroom: exporter::net::omg::HEADROOM,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let i16 = phasegate::blob::WeightFormat::I16;
+    let blob = host_sim::omg::export(&d, i16, &host_sim::omg::exporter_options(i16)).unwrap();
     let blob_path = dir.path().join("omg16.blob");
     std::fs::write(&blob_path, blob).unwrap();
     let float_out = dir.path().join("float.npz");

@@ -699,7 +699,26 @@ pub fn exercise_configs(bytes: &[u8]) -> usize {
             let _ = script.command(frame);
         }
     }
+    // An OMG target script, laid out for the tiny FE-OMG (its own length,
+    // capped so that a valid long script does not make the run slow).
+    if let Ok(script) = serde_json::from_str::<host_sim::omg_rollout::script::TargetScript>(text) {
+        let cfg = omg_config();
+        let frames = script.frames.unwrap_or(10).min(64);
+        ok += usize::from(script.blocks(cfg, &vec![0.0; 9 * cfg.key], frames).is_ok());
+        let _ = script.blocks(cfg, &vec![0.0; 9 * cfg.key], usize::MAX);
+    }
     ok
+}
+
+/// The tiny FE-OMG's configuration (target scripts name its key joints).
+fn omg_config() -> &'static exporter::net::omg::OmgConfig {
+    static C: OnceLock<exporter::net::omg::OmgConfig> = OnceLock::new();
+    C.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg/tiny_fe_r1");
+        exporter::net::omg::read_omg(&dir.join("model.safetensors"), &dir.join("config.json"))
+            .expect("the committed OMG model")
+            .config
+    })
 }
 
 /// Files of a PFNN directory, in the order the `pfnn_dir` target's input
@@ -1003,6 +1022,14 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
         "configs",
         "script.json".into(),
         golden("controller/script.json"),
+    ));
+    v.push((
+        "configs",
+        "target-script.json".into(),
+        host_sim::omg_rollout::script::BUILT_IN[0]
+            .2
+            .as_bytes()
+            .to_vec(),
     ));
     // A PFNN directory: 3 inputs, 4 hidden, 2 outputs, 2 tables.
     let f = |n: usize, s: f32| -> Vec<u8> {

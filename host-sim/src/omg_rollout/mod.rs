@@ -345,16 +345,8 @@ mod tests {
     #[test]
     fn fixed_point_follows_float_and_the_comparison_says_how_closely() {
         let d = load_dir(&dir()).unwrap();
-        let blob = crate::omg::export(
-            &d,
-            phasegate::blob::WeightFormat::I16,
-            // As `exporter omg` exports it.
-            &exporter::quantise::QuantOptions {
-                headroom: exporter::net::omg::HEADROOM,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let i16 = phasegate::blob::WeightFormat::I16;
+        let blob = crate::omg::export(&d, i16, &crate::omg::exporter_options(i16)).unwrap();
         let path = std::env::temp_dir().join(format!("omg-rollout-{}.blob", std::process::id()));
         std::fs::write(&path, &blob).unwrap();
         let fixed = run(&OmgRolloutArgs {

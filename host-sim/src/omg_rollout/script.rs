@@ -32,6 +32,10 @@ use serde::Deserialize;
 /// Frames of a script that does not say.
 pub const DEFAULT_FRAMES: usize = 300;
 
+/// Longest rollout: an hour at 60 frames per second (the frames are kept
+/// in memory, about 3.5 KB each for `tiny_fe_r1`).
+pub const MAX_FRAMES: usize = 60 * 60 * 60;
+
 /// One timed target.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -110,6 +114,9 @@ impl TargetScript {
     /// absurd values and axes of no length, naming the entry.
     pub fn blocks(&self, cfg: &OmgConfig, start: &[f64], frames: usize) -> Result<Vec<Vec<f64>>> {
         let k = cfg.key;
+        if frames > MAX_FRAMES || self.frames.is_some_and(|f| f > MAX_FRAMES) {
+            bail!("more than {MAX_FRAMES} frames (an hour at 60 per second)");
+        }
         if start.len() != 9 * k {
             bail!(
                 "target block of {} values, the model has {k} key joints",
@@ -262,6 +269,22 @@ mod tests {
             assert!(e.contains(needle) && e.contains("target 0"), "{json}: {e}");
         }
         assert!(serde_json::from_str::<TargetScript>(r#"{"targets": [], "extra": 1}"#).is_err());
+        let long: TargetScript =
+            serde_json::from_str(r#"{"frames": 1000000000000, "targets": []}"#).unwrap();
+        let e = format!("{:#}", long.blocks(&cfg, &start, 10).unwrap_err());
+        assert!(e.contains("an hour"), "{e}");
+        let e = format!(
+            "{:#}",
+            s_empty().blocks(&cfg, &start, MAX_FRAMES + 1).unwrap_err()
+        );
+        assert!(e.contains("an hour"), "{e}");
+    }
+
+    fn s_empty() -> TargetScript {
+        TargetScript {
+            frames: None,
+            targets: Vec::new(),
+        }
     }
 
     #[test]

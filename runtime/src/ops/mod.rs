@@ -23,6 +23,8 @@
 //! that cannot, and a bounded fixed-vs-float error. `docs/adding-an-op.md`
 //! lists the steps to add one.
 
+#[cfg(all(feature = "kernel-check", phasegate_dsp))]
+mod check_rng;
 pub(crate) mod common;
 pub mod cp;
 pub mod dense;

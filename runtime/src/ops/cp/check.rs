@@ -17,6 +17,7 @@ use crate::blob::{
 use crate::fixed::gate::{Gate, ONE};
 use crate::fixed::phase::Phase;
 use crate::fixed::round_shift;
+use crate::ops::check_rng::Rng;
 use crate::ops::common::finish_row;
 
 const MAX_IN: usize = 70;
@@ -36,30 +37,6 @@ struct Buffers {
     x: [i16; MAX_IN + 2],
     z: [i16; MAX_RANK],
     y: [i16; MAX_OUT],
-}
-
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-
-    /// Mostly uniform in `lo..lo + span`, one time in four an end.
-    fn edgy(&mut self, lo: i64, span: u64) -> i64 {
-        match self.below(8) {
-            0 => lo,
-            1 => lo + span as i64 - 1,
-            _ => lo + self.below(span) as i64,
-        }
-    }
 }
 
 /// The wrapping 32-bit dot product of a stored `I8Interleaved` row with

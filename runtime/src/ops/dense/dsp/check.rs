@@ -7,6 +7,7 @@
 
 use super::{Asm, Smlad};
 use crate::blob::WeightFormat;
+use crate::ops::check_rng::Rng;
 use crate::ops::dense::{Kernel, Portable, W16, W16L, W8I};
 
 /// Widest case, in inputs.
@@ -19,30 +20,6 @@ const ROW_CAP: usize = 2 * MAX_IN + 4;
 struct Buffers {
     rows: [[u8; ROW_CAP]; 4],
     x: [i16; MAX_IN + 2],
-}
-
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-
-    /// Mostly uniform, one time in four an end of the range.
-    fn edgy(&mut self, lo: i64, span: u64) -> i64 {
-        match self.below(8) {
-            0 => lo,
-            1 => lo + span as i64 - 1,
-            _ => lo + self.below(span) as i64,
-        }
-    }
 }
 
 /// Whether the assembly kernel and the portable one agree on case `seed`.
