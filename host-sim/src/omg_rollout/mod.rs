@@ -167,6 +167,9 @@ pub struct TargetReach {
 /// the last one included) and how the hand did.
 pub fn reach(r: &OmgRecord) -> Vec<TargetReach> {
     let mut out = Vec::new();
+    if r.is_empty() {
+        return out;
+    }
     for hand in 0..r.key_joints.len().min(2) {
         let targets: Vec<[f64; 3]> = r.targets.iter().map(|f| f[hand]).collect();
         let dist: Vec<f64> = (0..r.len())
@@ -340,6 +343,19 @@ mod tests {
         assert_eq!(back.key_joints, r.key_joints);
         let c = compare(&r, &back).unwrap();
         assert!(c.max_m < 1e-5, "f32 storage only: {}", c.max_m);
+        let empty = OmgRecord {
+            frames: Vec::new(),
+            positions: Vec::new(),
+            targets: Vec::new(),
+            axes: Vec::new(),
+            ..r.clone()
+        };
+        assert!(reach(&empty).is_empty());
+        let path = std::env::temp_dir().join(format!("omg-empty-{}.npz", std::process::id()));
+        empty.write(&path).unwrap();
+        let read = OmgRecord::read(&path);
+        let _ = std::fs::remove_file(&path);
+        assert!(read.is_err(), "a rollout of no frames is refused");
     }
 
     #[test]

@@ -183,8 +183,8 @@ impl OmgRecord {
         let rate = get("frame_rate", 1)?;
         let dim = |arr: &NpArray, i: usize| usize::try_from(arr.shape[i]).unwrap_or(usize::MAX);
         let (n, j, k) = (dim(frames, 0), dim(parents, 0), dim(keys, 0));
-        if j == 0 || k == 0 || dim(frames, 1) == 0 {
-            bail!("a rollout of no joints, key joints or frame width");
+        if n == 0 || j == 0 || k == 0 || dim(frames, 1) == 0 {
+            bail!("a rollout of no frames, joints, key joints or frame width");
         }
         for (name, arr, want) in [
             ("joint_positions", jp, [n, j, 3]),
