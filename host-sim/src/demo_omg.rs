@@ -42,7 +42,7 @@ pub struct Embedded {
     /// The imported model.
     pub omg: OmgNet,
     /// Parent of each joint (-1 for the root).
-    pub parents: Vec<i64>,
+    pub parents: Vec<i32>,
     /// Frame 0 of the held-out clip.
     pub first: Vec<f64>,
     /// Its target block at every frame.
@@ -72,16 +72,7 @@ pub fn int8_blob(omg: &OmgNet) -> Result<Vec<u8>> {
 /// Loads what `host-sim demo` runs, from the bytes compiled in.
 pub fn embedded() -> Result<Embedded> {
     let omg = omg_from_bytes(WEIGHTS, CONFIG).context("embedded OMG model")?;
-    let rig: serde_json::Value = serde_json::from_str(RIG)?;
-    let parents = rig["parents"]
-        .as_array()
-        .ok_or_else(|| anyhow!("embedded rig.json has no parents"))?
-        .iter()
-        .map(|v| {
-            v.as_i64()
-                .ok_or_else(|| anyhow!("embedded rig.json: bad parent"))
-        })
-        .collect::<Result<Vec<_>>>()?;
+    let parents = crate::omg_rollout::parents_of(RIG.as_bytes()).context("embedded rig.json")?;
     let (ishape, inputs) = npy_f32(INPUTS)?;
     let (tshape, targets) = npy_f32(TARGETS)?;
     let (n, t) = (ishape[2] as usize, tshape[2] as usize);
@@ -324,12 +315,7 @@ impl OmgDemo {
 fn draw(e: &Embedded, float: &Run, fixed: &Run, path: &Path) -> Result<()> {
     use crate::omg_rollout::picture::{draw, Layer};
     use crate::omg_rollout::record::OmgRecord;
-    let parents = e
-        .parents
-        .iter()
-        .map(|&p| i32::try_from(p).context("embedded rig.json: bad parent"))
-        .collect::<Result<Vec<_>>>()?;
-    let record = |r: &Run| OmgRecord::new(&e.omg.config, &parents, r.frames.clone());
+    let record = |r: &Run| OmgRecord::new(&e.omg.config, &e.parents, r.frames.clone());
     let (fixed, float) = (record(fixed)?, record(float)?);
     draw(
         &[

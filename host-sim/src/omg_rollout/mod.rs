@@ -43,18 +43,21 @@ pub struct OmgRolloutArgs {
 /// The parents of the rig the model in `dir` was trained on (`rig.json`).
 pub fn rig_parents(dir: &Path) -> Result<Vec<i32>> {
     let path = dir.join("rig.json");
-    let rig: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?,
-    )
-    .with_context(|| format!("{}", path.display()))?;
+    let bytes = std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
+    parents_of(&bytes).with_context(|| format!("{}", path.display()))
+}
+
+/// The `parents` of a `rig.json` (as `tools/omg/generate` writes it).
+pub fn parents_of(rig_json: &[u8]) -> Result<Vec<i32>> {
+    let rig: serde_json::Value = serde_json::from_slice(rig_json)?;
     rig["parents"]
         .as_array()
-        .with_context(|| format!("{}: no \"parents\"", path.display()))?
+        .context("no \"parents\"")?
         .iter()
         .map(|v| {
             v.as_i64()
                 .and_then(|p| i32::try_from(p).ok())
-                .with_context(|| format!("{}: bad parent {v}", path.display()))
+                .with_context(|| format!("bad parent {v}"))
         })
         .collect()
 }
