@@ -45,6 +45,22 @@ pub trait Network<R> {
     fn mean_output(&self, y: &mut [R]) -> Result<()>;
 }
 
+/// A borrowed network (a `&mut dyn Network` included) is a network.
+impl<R, N: Network<R> + ?Sized> Network<R> for &mut N {
+    fn input_dim(&self) -> usize {
+        (**self).input_dim()
+    }
+    fn output_dim(&self) -> usize {
+        (**self).output_dim()
+    }
+    fn predict(&mut self, phase: R, x: &[R], y: &mut [R]) -> Result<()> {
+        (**self).predict(phase, x, y)
+    }
+    fn mean_output(&self, y: &mut [R]) -> Result<()> {
+        (**self).mean_output(y)
+    }
+}
+
 /// [`Error::NotPfnn`] unless `net` is 342 -> 311.
 fn check_pfnn<R>(net: &impl Network<R>) -> Result<()> {
     let (inputs, outputs) = (net.input_dim(), net.output_dim());
@@ -343,6 +359,25 @@ fn wrap_cycle<R: Real>(c: R) -> R {
         R::ZERO
     } else {
         w
+    }
+}
+
+impl Locomotion<f32> {
+    /// [`Locomotion::frame`] with the network behind a vtable (one indirect
+    /// call per frame): not generic, so the loop is compiled here, at this
+    /// crate's optimisation level, rather than in the caller's crate. The
+    /// firmware is built for size but keeps this crate at `opt-level = 2`
+    /// (`firmware/Cargo.toml`); through the generic [`Locomotion::frame`]
+    /// the loop would be compiled as part of the firmware crate and cost
+    /// about 25 % more instructions per step.
+    #[inline(never)]
+    pub fn frame_dyn(
+        &mut self,
+        mut net: &mut dyn Network<f32>,
+        action: FrameAction,
+        command: &Command,
+    ) -> Result<&Pose<f32>> {
+        self.frame(&mut net, action, command)
     }
 }
 

@@ -33,15 +33,14 @@
 
 mod measure;
 mod region;
+mod slot;
 use region::{model_region, region};
 #[cfg(feature = "controller")]
 mod status_pin;
 // The wire format, shared with host-sim.
 use phasegate_wire as wire;
 
-use core::cell::UnsafeCell;
-use core::mem::MaybeUninit;
-use core::sync::atomic::{AtomicBool, Ordering};
+use slot::Slot;
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
 #[cfg(feature = "controller")]
@@ -87,61 +86,6 @@ const STYLE_ALIGN: usize = 16;
 /// The runtime: the base model, its activation arena, the adapter scratch
 /// buffer and the bank of styles.
 type Rt = Runtime<'static, A, S, N>;
-
-/// A `static` handed out once as `&'static mut` (no heap, no `static mut`).
-/// Holds either a value written at run time or a constant initial value
-/// (which then lives in .bss/.data and is never copied through the stack).
-struct Slot<T> {
-    taken: AtomicBool,
-    value: UnsafeCell<MaybeUninit<T>>,
-}
-
-// SAFETY: `take`/`init` hand out the only reference, once (guarded by `taken`).
-unsafe impl<T> Sync for Slot<T> {}
-
-impl<T> Slot<T> {
-    /// An empty slot, filled by [`Slot::init`].
-    const fn empty() -> Self {
-        Slot {
-            taken: AtomicBool::new(false),
-            value: UnsafeCell::new(MaybeUninit::uninit()),
-        }
-    }
-
-    /// A slot holding `value` from the start, handed out by [`Slot::take`].
-    const fn with(value: T) -> Self {
-        Slot {
-            taken: AtomicBool::new(false),
-            value: UnsafeCell::new(MaybeUninit::new(value)),
-        }
-    }
-
-    /// Moves `value` into an empty slot and returns the only `&mut` to it;
-    /// `None` if the slot was handed out before.
-    // A `&mut` from `&self` is the point (as in static_cell): `taken` makes it unique.
-    #[allow(clippy::mut_from_ref)]
-    fn init(&'static self, value: T) -> Option<&'static mut T> {
-        if self.taken.swap(true, Ordering::AcqRel) {
-            return None;
-        }
-        // SAFETY: first and only hand-out (checked above): no other reference.
-        Some(unsafe { (*self.value.get()).write(value) })
-    }
-
-    /// The only `&mut` to a slot made with [`Slot::with`]; `None` if handed
-    /// out before.
-    ///
-    /// # Safety
-    /// The slot must have been made with [`Slot::with`] (initialised).
-    #[allow(clippy::mut_from_ref)]
-    unsafe fn take(&'static self) -> Option<&'static mut T> {
-        if self.taken.swap(true, Ordering::AcqRel) {
-            return None;
-        }
-        // SAFETY: initialised (caller's contract), first and only hand-out.
-        Some(unsafe { (*self.value.get()).assume_init_mut() })
-    }
-}
 
 /// Staging buffers for one frame (in .bss, not on the stack).
 struct Io {
@@ -659,7 +603,7 @@ fn run_controller(
             exit(wire::exit::FRAME_ERROR);
         }
         net.ticks = 0;
-        let timed = deadline.frame(|action| state.frame(&mut net, action, &command));
+        let timed = deadline.frame(|action| state.frame_dyn(&mut net, action, &command));
         let o = timed.outcome;
         let pose = match timed.result {
             Ok(p) => p,

@@ -24,6 +24,8 @@
 mod measure;
 #[path = "../region.rs"]
 mod region;
+#[path = "../slot.rs"]
+mod slot;
 use region::region;
 
 use phasegate_wire as wire;
@@ -32,6 +34,7 @@ use cortex_m_rt::{entry, exception, ExceptionFrame};
 use phasegate::{Mix, Model, Phase, Runtime};
 use semihosting::fs::File;
 use semihosting::io::Write as _;
+use slot::Slot;
 
 /// Staging width (i16 elements), as the full firmware's.
 const W: usize = 512;
@@ -40,6 +43,20 @@ const A: usize = 1536;
 
 /// The runtime without a style bank.
 type Rt = Runtime<'static, A>;
+
+/// The runtime, once loaded.
+static RUNTIME: Slot<Rt> = Slot::empty();
+
+/// Staging buffers for one frame: a constant initial value in .bss, never
+/// built on the stack (at opt-level "z" a runtime initialiser is, and
+/// copied).
+static IO: Slot<Io> = Slot::with(Io {
+    inputs: [0.0; W],
+    inputs_q: [0; W],
+    outputs_q: [0; W],
+    outputs: [0.0; W],
+    record: [0; 8 + 6 * W],
+});
 
 /// Staging buffers for one frame.
 struct Io {
@@ -100,19 +117,14 @@ fn main() -> ! {
         exit(wire::exit::BAD_MODEL)
     };
     let (input_dim, output_dim) = (model.input_dim(), model.output_dim());
-    let Some(rt) = cortex_m::singleton!(: Option<Rt> = None) else {
-        exit(wire::exit::PANIC)
-    };
-    let Ok(rt) = Rt::new(model).map(|r| rt.insert(r)) else {
+    let Ok(rt) = Rt::new(model) else {
         exit(wire::exit::BAD_MODEL)
     };
-    let Some(io) = cortex_m::singleton!(: Io = Io {
-        inputs: [0.0; W],
-        inputs_q: [0; W],
-        outputs_q: [0; W],
-        outputs: [0.0; W],
-        record: [0; 8 + 6 * W],
-    }) else {
+    let Some(rt) = RUNTIME.init(rt) else {
+        exit(wire::exit::PANIC)
+    };
+    // SAFETY: IO is made with `Slot::with`.
+    let Some(io) = (unsafe { IO.take() }) else {
         exit(wire::exit::PANIC)
     };
     let (input, records) = match wire::InputHeader::parse(hostio) {
