@@ -82,20 +82,40 @@ pub const CALIB_INSTRUCTIONS: u32 = 2 * CALIB_ITERATIONS;
 /// the ticks it took: 1000 (40 instructions a tick) when QEMU runs with
 /// `-icount shift=0`, which is what the host checks before trusting the
 /// per-frame figures.
+///
+/// The loop starts on a tick edge (the counter is polled until it changes)
+/// and the counter is read in the same assembly block before and after it,
+/// so the count is the same whatever the code around it compiles to (at
+/// opt-level "z", reading it through [`now`] put it one tick over).
 pub fn calibrate() -> u32 {
-    let t0 = now();
-    // SAFETY: a register-only countdown loop; touches no memory or stack.
+    let (start, end): (u32, u32);
+    // SAFETY: reads SysTick's current-value register (word-aligned MMIO,
+    // reads have no side effect) and counts down in registers; no stack.
     unsafe {
         core::arch::asm!(
+            "ldr {c0}, [{cvr}]",
+            "1:",
+            "ldr {start}, [{cvr}]",
+            "cmp {start}, {c0}",
+            "beq 1b",
             "2:",
             "subs {n}, {n}, #1",
             "bne 2b",
+            "ldr {end}, [{cvr}]",
+            cvr = in(reg) SYST_CVR,
+            c0 = out(reg) _,
+            start = out(reg) start,
+            end = out(reg) end,
             n = inout(reg) CALIB_ITERATIONS => _,
-            options(nomem, nostack),
+            options(nostack, readonly),
         );
     }
-    elapsed(t0, now())
+    // Counts down and reloads after 0: the difference modulo RELOAD + 1.
+    start.wrapping_sub(end) & RELOAD
 }
+
+/// SysTick's current-value register (SYST_CVR).
+const SYST_CVR: u32 = 0xE000_E018;
 
 // Bounds of the stack, from cortex-m-rt's link.x: it starts (initial SP) at
 // `_stack_start`, the end of RAM, and may grow down to `_stack_end`, the end

@@ -12,12 +12,14 @@
 //! `I16` 2 rows 26 (`SMLAD`) plus 1 per two blocks, `SMLALD` 2 rows 28 plus
 //! 2 per eight blocks; 1 row 16. The loops a 512-wide layer spends its time
 //! in are unrolled that far because each unrolled block takes a fixed cost
-//! off every row (the real PFNN's middle layer: 1.407 -> 1.394 instructions
-//! per MAC for int8, 1.120 -> 1.096 for int16, for about 700 B of `.text`).
-//! Blocks that do not fill an unrolled iteration run one at a time first
-//! (4 instructions each on top). The `I16` two-row loop runs two blocks per
-//! iteration after one lone block when the count is odd (`lsrs` leaves the
-//! halved count's zero flag for `beq`; the block sets no flags). The
+//! off every row (the real PFNN's middle layer: 1.407 -> 1.396 instructions
+//! per MAC for int8, 1.120 -> 1.097 for int16, for about 500 B of `.text`).
+//! A block count that is not a multiple of the unrolling enters the first
+//! iteration part-way, through a `TBB`/`TBH` table (Duff's device): six
+//! instructions per call whatever the count, no extra copies of the block.
+//! The `I16` two-row loop runs two blocks per iteration after one lone
+//! block when the count is odd (`lsrs` leaves the halved count's zero flag
+//! for `beq`; the block sets no flags). The
 //! `I8Interleaved` and `SMLALD` loops count pairs of inputs in `r11` and
 //! take the odd ones before the blocks: a last half group and single groups
 //! of four (`I8Interleaved`), single pairs (`SMLALD`).
@@ -307,22 +309,29 @@ impl Blocks<W8I, 2> for Asm {
                 "b 1b",
                 "4:",
                 "lsrs r11, r11, #2",
-                "7:",
-                "tst r11, #3",
-                "beq 3f",
-                i8_block2!(),
-                "sub r11, r11, #1",
-                "b 7b",
-                "3:",
-                "lsrs r11, r11, #2",
                 "beq 5f",
-                "2:",
+                // `b` blocks: `ceil(b / 4)` iterations, the first entered at
+                // block `(-b) mod 4` of the four (Duff's device, `TBB`).
+                "rsb r12, r11, #0",
+                "and r12, r12, #3",
+                "adds r11, r11, #3",
+                "lsrs r11, r11, #2",
+                "tbb [pc, r12]",
+                "0:",
+                ".byte (20f - 0b) / 2",
+                ".byte (21f - 0b) / 2",
+                ".byte (22f - 0b) / 2",
+                ".byte (23f - 0b) / 2",
+                "20:",
                 i8_block2!(),
+                "21:",
                 i8_block2!(),
+                "22:",
                 i8_block2!(),
+                "23:",
                 i8_block2!(),
                 "subs r11, r11, #1",
-                "bne 2b",
+                "bne 20b",
                 "5:",
                 "pop {{r6}}",
                 inout("r0") a0,
@@ -470,26 +479,41 @@ impl Blocks<W16L, 2> for Asm {
                 "b 1b",
                 "4:",
                 "lsrs r11, r11, #3",
-                "7:",
-                "tst r11, #7",
-                "beq 3f",
-                i16l_block2!(),
-                "sub r11, r11, #1",
-                "b 7b",
-                "3:",
-                "lsrs r11, r11, #3",
                 "beq 5f",
-                "2:",
+                // `b` blocks: `ceil(b / 8)` iterations, the first entered at
+                // block `(-b) mod 8` of the eight (`TBH`: the offsets pass 255).
+                "rsb r12, r11, #0",
+                "and r12, r12, #7",
+                "adds r11, r11, #7",
+                "lsrs r11, r11, #3",
+                "tbh [pc, r12, lsl #1]",
+                "0:",
+                ".hword (20f - 0b) / 2",
+                ".hword (21f - 0b) / 2",
+                ".hword (22f - 0b) / 2",
+                ".hword (23f - 0b) / 2",
+                ".hword (24f - 0b) / 2",
+                ".hword (25f - 0b) / 2",
+                ".hword (26f - 0b) / 2",
+                ".hword (27f - 0b) / 2",
+                "20:",
                 i16l_block2!(),
+                "21:",
                 i16l_block2!(),
+                "22:",
                 i16l_block2!(),
+                "23:",
                 i16l_block2!(),
+                "24:",
                 i16l_block2!(),
+                "25:",
                 i16l_block2!(),
+                "26:",
                 i16l_block2!(),
+                "27:",
                 i16l_block2!(),
                 "subs r11, r11, #1",
-                "bne 2b",
+                "bne 20b",
                 "5:",
                 inout("r0") 0u32 => lo0,
                 inout("r1") 0u32 => hi0,

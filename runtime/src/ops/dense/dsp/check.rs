@@ -1,7 +1,8 @@
 //! The on-target half of the kernels' equivalence proof (`kernel-check`
 //! feature; run by `firmware/src/bin/kernel-check.rs` under QEMU): seeded
 //! random cases of the host emulation test's kinds (both layouts, `I16`
-//! with 32- and 64-bit accumulators, 1, 2 and 4 experts, every input width 1..=70 so every tail, full-range weights
+//! with 32- and 64-bit accumulators, 1, 2 and 4 experts, every input width
+//! 1..=300 so every tail and every entry into the unrolled loops, full-range weights
 //! and inputs, random padding, word-aligned and misaligned rows and
 //! inputs) through the assembly kernel and the portable one, bit for bit.
 
@@ -11,7 +12,7 @@ use crate::ops::check_rng::Rng;
 use crate::ops::dense::{Kernel, Portable, W16, W16L, W8I};
 
 /// Widest case, in inputs.
-const MAX_IN: usize = 70;
+const MAX_IN: usize = 300;
 /// Bytes of one row buffer: the widest `I16` row and a misalignment.
 const ROW_CAP: usize = 2 * MAX_IN + 4;
 

@@ -97,11 +97,14 @@ struct Emulated;
 
 /// The loops of `asm.rs`: a block is, twice, eight inputs then each row's
 /// step. One row: one block per iteration, the count decremented to zero.
-/// Two rows: the count halved (`lsrs`), a lone block when it was odd, then
-/// two blocks per iteration unless the halved count is zero (`beq`).
+/// Two rows: `unroll` blocks per iteration, `ceil(count / unroll)`
+/// iterations, the first entered at block `(-count) mod unroll` (the
+/// `TBB`/`TBH` entry of `I8Interleaved` and `SMLALD`; for `I16`'s two
+/// blocks, the lone block of an odd count).
 fn blocks<A: Acc, const N: usize>(
     rows: [&[u8]; N],
     x: &[i16],
+    unroll: usize,
     step: fn(&mut A, &[u8], &mut usize, [u32; 4]),
 ) -> [A; N] {
     assert!(
@@ -120,15 +123,14 @@ fn blocks<A: Acc, const N: usize>(
     };
     let mut count = x.len() / BLOCK;
     if N == 2 {
-        let odd = count & 1 == 1;
-        count >>= 1;
-        if odd {
-            block(&mut acc);
-        }
-        while count != 0 {
-            block(&mut acc);
-            block(&mut acc);
-            count -= 1;
+        let mut entry = count.wrapping_neg() % unroll;
+        let mut iterations = count.div_ceil(unroll);
+        while iterations != 0 {
+            for _ in entry..unroll {
+                block(&mut acc);
+            }
+            entry = 0;
+            iterations -= 1;
         }
     } else {
         loop {
@@ -179,7 +181,7 @@ impl<const N: usize> Blocks<W8I, N> for Emulated {
         let done = 4 * (groups % 4);
         if groups >= 4 {
             let rest: [&[u8]; N] = core::array::from_fn(|k| &rows[k][done..4 * groups]);
-            let sums = blocks(rest, &x[done..4 * groups], i8_step);
+            let sums = blocks(rest, &x[done..4 * groups], 4, i8_step);
             for (a, s) in acc.iter_mut().zip(sums) {
                 *a = a.wrapping_add(s);
             }
@@ -197,7 +199,7 @@ impl<const N: usize> Blocks<W8I, N> for Emulated {
 
 impl<const N: usize> Blocks<W16, N> for Emulated {
     unsafe fn run(rows: [&[u8]; N], x: &[i16]) -> [i32; N] {
-        blocks(rows, x, i16_step)
+        blocks(rows, x, 2, i16_step)
     }
 }
 
@@ -229,7 +231,7 @@ impl<const N: usize> Blocks<W16L, N> for Emulated {
         let done = 2 * pairs;
         if done < x.len() {
             let rest: [&[u8]; N] = core::array::from_fn(|k| &rows[k][4 * pairs..]);
-            let sums = blocks(rest, &x[done..], i16l_step);
+            let sums = blocks(rest, &x[done..], 8, i16l_step);
             for (a, s) in acc.iter_mut().zip(sums) {
                 *a = a.wrapping_add(s);
             }
@@ -296,7 +298,7 @@ fn case() -> impl Strategy<Value = Case> {
             Just((WeightFormat::I16, true))
         ],
         prop_oneof![Just(1usize), Just(2), Just(4)],
-        1usize..=70,
+        1usize..=300,
         any::<u64>(),
         prop_oneof![4 => Just(0usize), 1 => 1usize..4],
         prop_oneof![4 => Just(0usize), 1 => Just(1)],
@@ -413,7 +415,8 @@ proptest! {
 
     /// The DSP algorithm equals the portable kernel bit for bit (and both
     /// the exact sum, modulo 2^32 with 32-bit accumulators), for every tail
-    /// length of the block (in_dim 1..=70), 1, 2 and 4 experts, both
+    /// length of the block and every entry into the unrolled loops, one
+    /// iteration or several (in_dim 1..=300), 1, 2 and 4 experts, both
     /// accumulator widths of `I16`, full-range weights and inputs,
     /// aligned rows (the block loop) and misaligned ones (the fallback).
     #[test]
