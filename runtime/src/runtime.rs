@@ -265,104 +265,129 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
             .ok_or(buffer_error(s.end() as usize, cap))
     }
 
-    /// Runs every node from the quantised input already in the arena.
-    /// Not inlined: `run` and `run_quantised` share one copy (0.9 KB less
-    /// `.text` on the Cortex-M4 firmware).
-    #[inline(never)]
+    /// Runs every node from the quantised input already in the arena:
+    /// [`forward_graph`] over this runtime's buffers.
     fn forward<P: Probe>(&mut self, phase: Phase, probe: &mut P) -> Result<()> {
-        probe.mark(Mark::Start);
-        let phase_gate = self.model.gate(phase);
-        probe.mark(Mark::Gate);
-        let mut gates = [Gate::SINGLE; MAX_GATES];
-        // Each node's output span and gate slot, noted as it runs: later
-        // nodes find their slices and gates here instead of decoding the
-        // node they read from again.
-        let mut outputs = [Span::default(); MAX_NODES];
-        let mut slots = [0u8; MAX_NODES];
-        let mut softmaxes = 0u8;
         let weights = self.mix.weights();
-        let h = self.model.header();
-        for i in 0..h.nodes.count() {
-            let id = i as u8;
-            let invalid = Error::GraphInvalid { node: id };
-            // The loader decoded every node already; should one not decode
-            // now, the frame fails rather than skipping the rest.
-            let node = h.nodes.node(i).ok_or(invalid)?;
-            if let Some(o) = outputs.get_mut(i) {
-                *o = node.output;
+        forward_graph(
+            &self.model,
+            &mut self.arena.0,
+            &self.styles,
+            &weights,
+            &mut self.scratch,
+            phase,
+            probe,
+        )
+    }
+}
+
+/// The graph of `model` over `arena` (the quantised input already in
+/// place), with the styles of `weights` from `styles` adding their adapter
+/// outputs through `adapter_out`. Not generic (the probe is a trait object, a
+/// call per stage mark): compiled once, in this crate and at its
+/// optimisation level, whatever buffer sizes the runtime has and whichever
+/// crate instantiates it (the firmware builds the rest for size).
+#[inline(never)]
+fn forward_graph(
+    model: &Model<'_>,
+    arena: &mut [i16],
+    styles: &[Style<'_>],
+    weights: &[(Option<StyleId>, i64); 2],
+    adapter_out: &mut [i16],
+    phase: Phase,
+    probe: &mut dyn Probe,
+) -> Result<()> {
+    probe.mark(Mark::Start);
+    let phase_gate = model.gate(phase);
+    probe.mark(Mark::Gate);
+    let mut gates = [Gate::SINGLE; MAX_GATES];
+    // Each node's output span and gate slot, noted as it runs: later
+    // nodes find their slices and gates here instead of decoding the
+    // node they read from again.
+    let mut outputs = [Span::default(); MAX_NODES];
+    let mut slots = [0u8; MAX_NODES];
+    let mut softmaxes = 0u8;
+    let h = model.header();
+    for i in 0..h.nodes.count() {
+        let id = i as u8;
+        let invalid = Error::GraphInvalid { node: id };
+        // The loader decoded every node already; should one not decode
+        // now, the frame fails rather than skipping the rest.
+        let node = h.nodes.node(i).ok_or(invalid)?;
+        if let Some(o) = outputs.get_mut(i) {
+            *o = node.output;
+        }
+        if !in_place(&node) {
+            let mut at = usize::from(node.input.offset);
+            for s in &node.inputs {
+                let base = match s.source {
+                    Source::Input => h.input,
+                    Source::Node(j) => *outputs.get(usize::from(j)).ok_or(invalid)?,
+                };
+                let src = within(base, s).ok_or(invalid)?;
+                // Past u16 a span cannot name the place: refused, never wrapped.
+                let offset = u16::try_from(at).map_err(|_| Error::ArenaOverlap { node: id })?;
+                let dst = Span {
+                    offset,
+                    len: src.len,
+                };
+                let (from, to, _) = split(arena, src, dst, Span::default())?;
+                to.copy_from_slice(from);
+                at += usize::from(src.len);
             }
-            if !in_place(&node) {
-                let mut at = usize::from(node.input.offset);
-                for s in &node.inputs {
-                    let base = match s.source {
-                        Source::Input => h.input,
-                        Source::Node(j) => *outputs.get(usize::from(j)).ok_or(invalid)?,
-                    };
-                    let src = within(base, s).ok_or(invalid)?;
-                    // Past u16 a span cannot name the place: refused, never wrapped.
-                    let offset = u16::try_from(at).map_err(|_| Error::ArenaOverlap { node: id })?;
-                    let dst = Span {
-                        offset,
-                        len: src.len,
-                    };
-                    let (from, to, _) = split(&mut self.arena.0, src, dst, Span::default())?;
-                    to.copy_from_slice(from);
-                    at += usize::from(src.len);
+        }
+        probe.mark(Mark::Gathered(id));
+        let layer = match &node.op {
+            NodeOp::Softmax(s) => {
+                let logits = span_mut(arena, node.input)?;
+                if let Some(g) = gates.get_mut(usize::from(softmaxes)) {
+                    *g = Gate::softmax(logits, s.frac)?;
                 }
-            }
-            probe.mark(Mark::Gathered(id));
-            let layer = match &node.op {
-                NodeOp::Softmax(s) => {
-                    let logits = span_mut(&mut self.arena.0, node.input)?;
-                    if let Some(g) = gates.get_mut(usize::from(softmaxes)) {
-                        *g = Gate::softmax(logits, s.frac)?;
-                    }
-                    if let Some(slot) = slots.get_mut(i) {
-                        *slot = softmaxes;
-                    }
-                    softmaxes = softmaxes.saturating_add(1);
-                    probe.mark(Mark::Done(id));
-                    continue;
+                if let Some(slot) = slots.get_mut(i) {
+                    *slot = softmaxes;
                 }
-                NodeOp::Layer(d) => Layer::new(self.model.payload(), *d, id)
-                    .ok_or(Error::SectionOutOfBounds { layer: id })?,
-            };
-            let gate = match node.gate {
-                GateSource::None => Gate::SINGLE,
-                GateSource::Phase => phase_gate,
-                GateSource::Node(j) => slots
-                    .get(usize::from(j))
-                    .and_then(|&k| gates.get(usize::from(k)))
-                    .copied()
-                    .unwrap_or(Gate::SINGLE),
-            };
-            let (x, scratch, y) = split(&mut self.arena.0, node.input, node.scratch, node.output)?;
-            let styled = adapters(&self.styles, &weights, i, &phase_gate, x, &mut self.scratch)?;
-            if !styled {
-                layer.run(&gate, x, scratch, y)?;
+                softmaxes = softmaxes.saturating_add(1);
                 probe.mark(Mark::Done(id));
                 continue;
             }
-            // A residual node: the base layer without its activation, plus
-            // the mixed adapter output, then the base layer's activation.
-            let activation = layer.desc().activation;
-            let plain = layer.with_activation(Activation::Identity);
-            plain.run(&gate, x, scratch, y)?;
-            let recs = layer.requant().as_chunks::<REQUANT_RECORD_LEN>().0;
-            for ((yj, &rj), rec) in y.iter_mut().zip(&self.scratch[..]).zip(recs) {
-                let v = sat_i16(i64::from(*yj) + i64::from(rj));
-                *yj = match activation {
-                    Activation::Identity => v,
-                    Activation::Elu => {
-                        let frac = Requant::from_bytes(rec).map_or(0, |r| r.frac);
-                        elu_q(v, frac)
-                    }
-                };
-            }
+            NodeOp::Layer(d) => Layer::new(model.payload(), *d, id)
+                .ok_or(Error::SectionOutOfBounds { layer: id })?,
+        };
+        let gate = match node.gate {
+            GateSource::None => Gate::SINGLE,
+            GateSource::Phase => phase_gate,
+            GateSource::Node(j) => slots
+                .get(usize::from(j))
+                .and_then(|&k| gates.get(usize::from(k)))
+                .copied()
+                .unwrap_or(Gate::SINGLE),
+        };
+        let (x, scratch, y) = split(arena, node.input, node.scratch, node.output)?;
+        let styled = adapters(styles, weights, i, &phase_gate, x, adapter_out)?;
+        if !styled {
+            layer.run(&gate, x, scratch, y)?;
             probe.mark(Mark::Done(id));
+            continue;
         }
-        Ok(())
+        // A residual node: the base layer without its activation, plus
+        // the mixed adapter output, then the base layer's activation.
+        let activation = layer.desc().activation;
+        let plain = layer.with_activation(Activation::Identity);
+        plain.run(&gate, x, scratch, y)?;
+        let recs = layer.requant().as_chunks::<REQUANT_RECORD_LEN>().0;
+        for ((yj, &rj), rec) in y.iter_mut().zip(&adapter_out[..]).zip(recs) {
+            let v = sat_i16(i64::from(*yj) + i64::from(rj));
+            *yj = match activation {
+                Activation::Identity => v,
+                Activation::Elu => {
+                    let frac = Requant::from_bytes(rec).map_or(0, |r| r.frac);
+                    elu_q(v, frac)
+                }
+            };
+        }
+        probe.mark(Mark::Done(id));
     }
+    Ok(())
 }
 
 /// The activation arena: word-aligned for kernels that load two i16 at a
