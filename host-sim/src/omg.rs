@@ -63,6 +63,10 @@ pub struct References {
     pub rollout: Clips,
     /// The target block of every rollout frame (clips, 300, 9K).
     pub targets: Clips,
+    /// The same PyTorch modules run in float64 on the same inputs (stored
+    /// as float32: `ref64_*.npy`, `tools/omg/train/references64.py`), when
+    /// present: one step and the grounded rollouts.
+    pub float64: Option<(Clips, Clips)>,
 }
 
 /// A model directory: the imported model and its references.
@@ -84,7 +88,29 @@ pub fn load_dir(dir: &Path) -> Result<OmgDir> {
         one_step: r("ref_one_step")?,
         rollout: r("ref_rollout_grounded")?,
         targets: r("ref_rollout_targets")?,
+        float64: None,
     };
+    let mut refs = refs;
+    let (one64, roll64) = (
+        dir.join("ref64_one_step.npy"),
+        dir.join("ref64_rollout_grounded.npy"),
+    );
+    if one64.is_file() || roll64.is_file() {
+        let (one, roll) = (Clips::read(&one64)?, Clips::read(&roll64)?);
+        for (name, c, want) in [
+            ("ref64_one_step", &one, refs.one_step.dims),
+            ("ref64_rollout_grounded", &roll, refs.rollout.dims),
+        ] {
+            if c.dims != want {
+                bail!(
+                    "{}/{name}.npy: shape {:?}, expected {want:?} (as its float32 twin)",
+                    dir.display(),
+                    c.dims
+                );
+            }
+        }
+        refs.float64 = Some((one, roll));
+    }
     let n = omg.config.model_width;
     let t = omg.config.slice("target").len();
     for (name, c, w) in [
@@ -333,6 +359,9 @@ pub struct FloatAgreement {
     pub one_step: Diff,
     /// The grounded rollouts vs `ref_rollout_grounded` (all clips' frames).
     pub rollout: Diff,
+    /// One step and the rollouts against the float64 PyTorch references,
+    /// when the directory has them.
+    pub float64: Option<(Diff, Diff)>,
 }
 
 fn frames_of(c: &Clips, clip: usize) -> Vec<Vec<f64>> {
@@ -368,9 +397,16 @@ pub fn float_rollouts(d: &OmgDir) -> Result<Vec<Vec<f64>>> {
 pub fn float_agreement(d: &OmgDir) -> Result<FloatAgreement> {
     let y = one_step(d, |x| Ok(d.omg.step(x)))?;
     let ro = float_rollouts(d)?;
+    let float64 = d.refs.float64.as_ref().map(|(one, roll)| {
+        (
+            diff(&d.omg, &y, &all_frames(one)),
+            diff(&d.omg, &ro, &all_frames(roll)),
+        )
+    });
     Ok(FloatAgreement {
         one_step: diff(&d.omg, &y, &all_frames(&d.refs.one_step)),
         rollout: diff(&d.omg, &ro, &all_frames(&d.refs.rollout)),
+        float64,
     })
 }
 
@@ -547,7 +583,7 @@ impl OmgAccuracy {
         let mut s = format!("{}\n", self.dir);
         let f = &self.float;
         s += &format!(
-            "f64 forward vs PyTorch: one step ({} frames) max rel {:.2e}, max abs {:.2e}; \
+            "f64 forward vs PyTorch float32: one step ({} frames) max rel {:.2e}, max abs {:.2e}; \
              grounded rollout ({} frames) max rel {:.2e}, max abs {:.2e}, max joint {:.2e} m\n",
             f.one_step.frames,
             f.one_step.max_rel,
@@ -557,6 +593,16 @@ impl OmgAccuracy {
             f.rollout.max_abs,
             f.rollout.max_joint_m
         );
+        match &f.float64 {
+            Some((one, roll)) => {
+                s += &format!(
+                    "f64 forward vs PyTorch float64: one step max rel {:.2e}, max abs {:.2e}; \
+                     grounded rollout max rel {:.2e}, max abs {:.2e}, max joint {:.2e} m\n",
+                    one.max_rel, one.max_abs, roll.max_rel, roll.max_abs, roll.max_joint_m
+                );
+            }
+            None => s += "f64 forward vs PyTorch float64: no ref64_*.npy in the directory\n",
+        }
         s += "blob   bytes   MACs/frame  RAM B | one step vs f64: pos max cm  joint p99 cm  joint max cm | \
               rollout vs f64: joint p99 cm  joint max cm  mean cm\n";
         for x in &self.fixed {

@@ -37,6 +37,17 @@ fn the_f64_graph_forward_reproduces_the_pytorch_references() {
         assert!(a.rollout.max_rel <= 2e-3, "{name}: {:?}", a.rollout);
         assert!(a.rollout.max_joint_m <= 1e-4, "{name}: {:?}", a.rollout);
         assert_eq!(a.rollout.frames, d.refs.rollout.dims[0] * 300);
+        // The same PyTorch modules in float64 (`ref64_*.npy`, stored as
+        // float32): issue 11's 1e-4 holds one step and over the rollouts
+        // (measured 6.0e-8, the files' own rounding); what the float32
+        // references add is float32 arithmetic.
+        let (one, roll) = a
+            .float64
+            .as_ref()
+            .unwrap_or_else(|| panic!("{name}: no ref64_*.npy (tools/omg/train/references64.py)"));
+        assert!(one.max_rel <= 1e-4, "{name}: {one:?}");
+        assert!(roll.max_rel <= 1e-4, "{name}: {roll:?}");
+        assert_eq!(roll.frames, a.rollout.frames);
     }
 }
 

@@ -132,6 +132,24 @@ def test_grounded_rollout_matches_reference(model, dtype, atol):
                                ro[:, 1:, slice(*m.cfg["slices"]["cost"])], atol=1e-3)
 
 
+def test_float64_references_match_numpy_float64(model):
+    """The float64 PyTorch references (tools/omg/train/references64.py, stored as float32) and
+    the float64 NumPy forward are two implementations of one model: without float32 arithmetic
+    they agree to the files' float32 rounding, one step and over the 300 fed-back frames."""
+    _, d = model
+    m = NumpyOMG(d, dtype=np.float64)
+    r = _refs(d)
+    one64 = np.load(d / "ref64_one_step.npy")
+    roll64 = np.load(d / "ref64_rollout_grounded.npy")
+    x = r["ref_inputs"].astype(np.float64)
+    y = m.step(x.reshape(-1, x.shape[-1])).reshape(x.shape)
+    np.testing.assert_allclose(y, one64, rtol=1.2e-7, atol=1e-9)
+    clips = np.zeros(roll64.shape)
+    clips[:, 0] = r["ref_inputs"][:, 0]
+    clips[:, :, slice(*m.cfg["slices"]["target"])] = r["ref_rollout_targets"]
+    np.testing.assert_allclose(m.rollout(clips, mode="grounded"), roll64, rtol=1.2e-7, atol=1e-7)
+
+
 def test_grounded_costs_agree_with_data(model):
     """On ground-truth frames the grounded cost formula gives the data's cost block."""
     m, d = model
