@@ -34,6 +34,7 @@
 mod measure;
 mod region;
 mod slot;
+mod staging;
 use region::{model_region, region};
 #[cfg(feature = "controller")]
 mod status_pin;
@@ -41,6 +42,7 @@ mod status_pin;
 use phasegate_wire as wire;
 
 use slot::Slot;
+use staging::{Staging, W};
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
 #[cfg(feature = "controller")]
@@ -53,10 +55,6 @@ use phasegate::{Model, Phase, Runtime, Style};
 use phasegate_controller::{layout, Deadline, Locomotion, Network, TickSource};
 use semihosting::fs::File;
 use semihosting::io::Write as _;
-
-/// Capacity (i16 elements) of the firmware's input/output staging buffers:
-/// the real PFNN has 342 inputs and 311 outputs.
-const W: usize = 512;
 
 /// Capacity (i16 elements) of the activation arena. The real PFNN's plan
 /// needs 1,024 (a 512-wide layer's input and output); a CP layer of rank
@@ -89,22 +87,14 @@ type Rt = Runtime<'static, A, S, N>;
 
 /// Staging buffers for one frame (in .bss, not on the stack).
 struct Io {
-    inputs: [f32; W],
-    inputs_q: [i16; W],
-    outputs_q: [i16; W],
-    outputs: [f32; W],
-    record: [u8; 8 + 6 * W],
+    staging: Staging,
     /// The frame's stage timings (its profile record).
     timer: measure::StageTimer,
 }
 
 static RUNTIME: Slot<Rt> = Slot::empty();
 static IO: Slot<Io> = Slot::with(Io {
-    inputs: [0.0; W],
-    inputs_q: [0; W],
-    outputs_q: [0; W],
-    outputs: [0.0; W],
-    record: [0; 8 + 6 * W],
+    staging: Staging::ZERO,
     timer: measure::StageTimer::new(),
 });
 
@@ -262,11 +252,11 @@ fn main() -> ! {
     let record_len = out_header.record_len();
     let timer = &mut io.timer;
     let (Some(inputs), Some(inputs_q), Some(outputs_q), Some(outputs), Some(record)) = (
-        io.inputs.get_mut(..input_dim),
-        io.inputs_q.get_mut(..input_dim),
-        io.outputs_q.get_mut(..output_dim),
-        io.outputs.get_mut(..output_dim),
-        io.record.get_mut(..record_len),
+        io.staging.inputs.get_mut(..input_dim),
+        io.staging.inputs_q.get_mut(..input_dim),
+        io.staging.outputs_q.get_mut(..output_dim),
+        io.staging.outputs.get_mut(..output_dim),
+        io.staging.record.get_mut(..record_len),
     ) else {
         error!(
             "model dimensions exceed the firmware's {=usize}-element buffers",
@@ -569,7 +559,7 @@ fn run_controller(
     let Some(io) = (unsafe { IO.take() }) else {
         exit(wire::exit::PANIC)
     };
-    let Some(record) = io.record.get_mut(..wire::POSE_RECORD_LEN) else {
+    let Some(record) = io.staging.record.get_mut(..wire::POSE_RECORD_LEN) else {
         exit(wire::exit::PANIC)
     };
     let mut file = create_output(&wire::OutputHeader {

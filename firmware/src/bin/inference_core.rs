@@ -26,6 +26,8 @@ mod measure;
 mod region;
 #[path = "../slot.rs"]
 mod slot;
+#[path = "../staging.rs"]
+mod staging;
 use region::region;
 
 use phasegate_wire as wire;
@@ -35,9 +37,8 @@ use phasegate::{Mix, Model, Phase, Runtime};
 use semihosting::fs::File;
 use semihosting::io::Write as _;
 use slot::Slot;
+use staging::Staging;
 
-/// Staging width (i16 elements), as the full firmware's.
-const W: usize = 512;
 /// Activation arena (i16 elements), as the full firmware's.
 const A: usize = 1536;
 
@@ -47,25 +48,8 @@ type Rt = Runtime<'static, A>;
 /// The runtime, once loaded.
 static RUNTIME: Slot<Rt> = Slot::empty();
 
-/// Staging buffers for one frame: a constant initial value in .bss, never
-/// built on the stack (at opt-level "z" a runtime initialiser is, and
-/// copied).
-static IO: Slot<Io> = Slot::with(Io {
-    inputs: [0.0; W],
-    inputs_q: [0; W],
-    outputs_q: [0; W],
-    outputs: [0.0; W],
-    record: [0; 8 + 6 * W],
-});
-
 /// Staging buffers for one frame.
-struct Io {
-    inputs: [f32; W],
-    inputs_q: [i16; W],
-    outputs_q: [i16; W],
-    outputs: [f32; W],
-    record: [u8; 8 + 6 * W],
-}
+static IO: Slot<Staging> = Slot::with(Staging::ZERO);
 
 /// defmt needs a global logger at link time (`defmt.x`, shared with the
 /// full firmware, asks for one); this one drops everything: the core does
