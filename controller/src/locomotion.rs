@@ -368,8 +368,8 @@ impl Locomotion<f32> {
     /// crate's optimisation level, rather than in the caller's crate. The
     /// firmware is built for size but keeps this crate at `opt-level = 2`
     /// (`firmware/Cargo.toml`); through the generic [`Locomotion::frame`]
-    /// the loop would be compiled as part of the firmware crate and cost
-    /// about 25 % more instructions per step.
+    /// the loop would be compiled as part of the firmware crate, and its
+    /// own work per step measured 62 K instructions instead of 47 K.
     #[inline(never)]
     pub fn frame_dyn(
         &mut self,

@@ -83,7 +83,8 @@ pub const CALIB_INSTRUCTIONS: u32 = 2 * CALIB_ITERATIONS;
 /// `-icount shift=0`, which is what the host checks before trusting the
 /// per-frame figures.
 ///
-/// The loop starts on a tick edge (the counter is polled until it changes)
+/// The loop starts on a tick edge (the counter is polled until it changes,
+/// a bounded number of times)
 /// and the counter is read in the same assembly block before and after it,
 /// so the count is the same whatever the code around it compiles to (at
 /// opt-level "z", reading it through [`now`] put it one tick over).
@@ -93,17 +94,24 @@ pub fn calibrate() -> u32 {
     // reads have no side effect) and counts down in registers; no stack.
     unsafe {
         core::arch::asm!(
+            // Poll for the edge at most 64 times (a tick is 40 instructions):
+            // a counter that does not move must not hang the boot.
+            "movs {k}, #64",
             "ldr {c0}, [{cvr}]",
             "1:",
             "ldr {start}, [{cvr}]",
             "cmp {start}, {c0}",
-            "beq 1b",
+            "bne 3f",
+            "subs {k}, {k}, #1",
+            "bne 1b",
+            "3:",
             "2:",
             "subs {n}, {n}, #1",
             "bne 2b",
             "ldr {end}, [{cvr}]",
             cvr = in(reg) SYST_CVR,
             c0 = out(reg) _,
+            k = out(reg) _,
             start = out(reg) start,
             end = out(reg) end,
             n = inout(reg) CALIB_ITERATIONS => _,
