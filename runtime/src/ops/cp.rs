@@ -288,27 +288,24 @@ impl<'a> CpLayer<'a> {
         out: &mut [i16],
         mut finish: impl FnMut(usize, &mut [i64], &mut [i16]),
     ) -> Result<()> {
-        let (one, two) = matrix_kernel(self.desc.weights, self.desc.acc);
+        let kernel = matrix_kernel(self.desc.weights, self.desc.acc);
         let rb = self.desc.weights.row_bytes(x.len()).max(1);
         let short = Error::SectionLength { layer: self.index };
-        let mut rows = matrix.chunks_exact(rb);
+        if out
+            .len()
+            .checked_mul(rb)
+            .is_none_or(|need| matrix.len() < need)
+        {
+            return Err(short);
+        }
         let mut buffer = [0i64; CHUNK];
-        for (c, chunk) in out.chunks_mut(CHUNK).enumerate() {
+        for (c, (chunk, m)) in out
+            .chunks_mut(CHUNK)
+            .zip(matrix.chunks(CHUNK.saturating_mul(rb)))
+            .enumerate()
+        {
             let dots = buffer.get_mut(..chunk.len()).ok_or(short)?;
-            let mut done = 0;
-            if let Some(two) = two {
-                let (pairs, _) = dots.as_chunks_mut::<2>();
-                for pair in pairs {
-                    let (Some(r0), Some(r1)) = (rows.next(), rows.next()) else {
-                        return Err(short);
-                    };
-                    *pair = two([r0, r1], x);
-                    done += 2;
-                }
-            }
-            for d in dots.iter_mut().skip(done) {
-                [*d] = one([rows.next().ok_or(short)?], x);
-            }
+            kernel.rows(m, rb, x, dots).ok_or(short)?;
             finish(c * CHUNK, dots, chunk);
         }
         Ok(())

@@ -299,11 +299,16 @@ type Fast16L = dsp::Smlad<W16L, dsp::Asm>;
 #[cfg(not(phasegate_dsp))]
 type Fast16L = Portable<W16L, i64>;
 
+/// The two-row loop over the row pairs of a whole matrix after one check
+/// (`dsp::matrix_pairs`): `false` when the check fails.
+type MatrixPairs = fn(&[u8], usize, &[i16], &mut [[i64; 2]]) -> bool;
+
 /// The kernels of one weight matrix (no experts: the factors of a CP
 /// layer), one and, where it has one, two rows per pass over `x`: the
 /// kernels a dense layer of the same formats runs (each row is
-/// `weights.row_bytes(x.len())` long).
-pub(super) fn matrix_kernel(weights: WeightFormat, acc: AccWidth) -> (Rows<1>, Option<Rows<2>>) {
+/// `weights.row_bytes(x.len())` long); and, on the DSP target, the
+/// two-row loop over a whole matrix after one check (`dsp::matrix_pairs`).
+pub(super) fn matrix_kernel(weights: WeightFormat, acc: AccWidth) -> MatrixKernel {
     let k = match (weights, acc) {
         (WeightFormat::I8, AccWidth::I32) => Legacy8::dots(),
         (WeightFormat::I8, AccWidth::I64) => Dots::one::<Portable<W8, i64>>(),
@@ -312,7 +317,68 @@ pub(super) fn matrix_kernel(weights: WeightFormat, acc: AccWidth) -> (Rows<1>, O
         (WeightFormat::I16, AccWidth::I32) => Dots::of::<Fast16>(),
         (WeightFormat::I16, AccWidth::I64) => Dots::one::<Portable<W16, i64>>(),
     };
-    (k.one, k.two)
+    MatrixKernel {
+        one: k.one,
+        two: k.two,
+        pairs: whole_matrix(weights, acc),
+    }
+}
+
+/// See [`matrix_kernel`].
+#[derive(Clone, Copy)]
+pub(super) struct MatrixKernel {
+    one: Rows<1>,
+    two: Option<Rows<2>>,
+    pairs: Option<MatrixPairs>,
+}
+
+impl MatrixKernel {
+    /// `out[i]` = row `i` of `matrix` (consecutive rows of `rb` bytes) with
+    /// `x`; `None` when the matrix holds fewer than `out.len()` rows. Not
+    /// inlined: one copy serves both factors of every CP layer (`.text`).
+    #[inline(never)]
+    pub(super) fn rows(&self, matrix: &[u8], rb: usize, x: &[i16], out: &mut [i64]) -> Option<()> {
+        let matrix = matrix.get(..out.len().checked_mul(rb)?)?;
+        let (pairs, last) = out.as_chunks_mut::<2>();
+        let paired = 2 * pairs.len();
+        let fast = self.pairs.is_some_and(|f| f(matrix, rb, x, pairs));
+        let mut rows = matrix
+            .chunks_exact(rb.max(1))
+            .skip(if fast { paired } else { 0 });
+        match self.two {
+            _ if fast => {}
+            Some(two) => {
+                for pair in pairs {
+                    *pair = two([rows.next()?, rows.next()?], x);
+                }
+            }
+            None => {
+                for o in pairs.as_flattened_mut() {
+                    [*o] = (self.one)([rows.next()?], x);
+                }
+            }
+        }
+        for o in last {
+            [*o] = (self.one)([rows.next()?], x);
+        }
+        Some(())
+    }
+}
+
+/// The DSP kernels' whole-matrix loop for the two layouts they read.
+#[cfg(phasegate_dsp)]
+fn whole_matrix(weights: WeightFormat, acc: AccWidth) -> Option<MatrixPairs> {
+    match (weights, acc) {
+        (WeightFormat::I8Interleaved, AccWidth::I32) => Some(dsp::matrix_pairs::<W8I, dsp::Asm>),
+        (WeightFormat::I16, AccWidth::I32) => Some(dsp::matrix_pairs::<W16L, dsp::Asm>),
+        _ => None,
+    }
+}
+
+/// None off the DSP target: the portable kernels take a matrix pair by pair.
+#[cfg(not(phasegate_dsp))]
+fn whole_matrix(_: WeightFormat, _: AccWidth) -> Option<MatrixPairs> {
+    None
 }
 
 impl<'a> DenseLayer<'a> {

@@ -195,6 +195,38 @@ impl<W: Packed, L: Blocks<W, 1> + Blocks<W, 2>> Kernel for Smlad<W, L> {
     }
 }
 
+/// `out[p]` = rows `2p` and `2p + 1` of `matrix` (consecutive rows of
+/// `rb` bytes) with `x`, through the two-row loop straight, after one check
+/// for the whole matrix: that the loop takes the whole width, each row is
+/// exactly its length, and `x` and the matrix start word-aligned (a CP
+/// factor's usual case). `false`, and `out` to be recomputed, when the
+/// check fails or the matrix is short.
+#[inline(never)]
+pub(super) fn matrix_pairs<W: Packed, L: Blocks<W, 2>>(
+    matrix: &[u8],
+    rb: usize,
+    x: &[i16],
+    out: &mut [[i64; 2]],
+) -> bool {
+    let whole = W::head(x.len()) == x.len() && !x.is_empty() && word_aligned(x);
+    let fits = rb == W::head_bytes(x.len()) && rb.is_multiple_of(4) && word_aligned(matrix);
+    if !(whole && fits) {
+        return false;
+    }
+    let mut rows = matrix.chunks_exact(rb);
+    for pair in out {
+        let (Some(r0), Some(r1)) = (rows.next(), rows.next()) else {
+            return false;
+        };
+        // SAFETY: `x` is a non-zero multiple of STEP inputs (`head` takes
+        // it whole) and word-aligned; each row is `W::head_bytes(x.len())`
+        // bytes and starts word-aligned (the matrix does, and the row
+        // length is a multiple of 4).
+        *pair = unsafe { L::run([r0, r1], x) }.map(Acc::widen);
+    }
+    true
+}
+
 /// Four rows: two passes of two, in one call. When the block loop takes
 /// the whole width and every row and `x` are word-aligned (the usual case:
 /// a cubic gate's layer), the two loops run straight after one check of

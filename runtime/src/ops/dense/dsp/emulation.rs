@@ -6,7 +6,7 @@
 //! reference. The assembly itself is checked on the target by
 //! `firmware/src/bin/kernel-check.rs` under QEMU.
 
-use super::{Blocks, Kernel, Smlad, BLOCK, W16, W16L, W8I};
+use super::{matrix_pairs, Blocks, Kernel, Packed, Smlad, BLOCK, W16, W16L, W8I};
 use crate::blob::WeightFormat;
 use crate::ops::dense::{Acc, Portable};
 use proptest::prelude::*;
@@ -364,26 +364,9 @@ fn run(c: &Case) -> (Vec<i64>, Vec<i64>, Vec<i64>) {
         .zip(&c.w)
         .map(|((buf, m), r)| &as_bytes(buf)[*m..*m + c.format.row_bytes(r.len())])
         .collect();
-    let mut xbuf = vec![0i16; c.x.len() + 2];
-    let off = xbuf.as_ptr() as usize % 4 / 2;
-    let start = (off + c.x_misalign) % 2;
-    xbuf[start..start + c.x.len()].copy_from_slice(&c.x);
-    let x = &xbuf[start..start + c.x.len()];
-    let exact =
-        c.w.iter()
-            .map(|r| {
-                let s: i64 = r
-                    .iter()
-                    .zip(&c.x)
-                    .map(|(&w, &v)| i64::from(w) * i64::from(v))
-                    .sum();
-                if c.wide {
-                    s
-                } else {
-                    i64::from(s as i32)
-                }
-            })
-            .collect();
+    let xbuf = placed_x(c);
+    let x = &xbuf.0[xbuf.1..xbuf.1 + c.x.len()];
+    let exact = exact_sums(c, &c.w);
     fn both<K: Kernel>(rows: &[&[u8]], x: &[i16]) -> Vec<i64> {
         match rows.len() {
             1 => K::dot1([rows[0]], x).to_vec(),
@@ -410,8 +393,106 @@ fn run(c: &Case) -> (Vec<i64>, Vec<i64>, Vec<i64>) {
     }
 }
 
+/// `c.x` in a buffer, starting `c.x_misalign` half-words past a word
+/// boundary: (buffer, start).
+fn placed_x(c: &Case) -> (Vec<i16>, usize) {
+    let mut xbuf = vec![0i16; c.x.len() + 2];
+    let off = xbuf.as_ptr() as usize % 4 / 2;
+    let start = (off + c.x_misalign) % 2;
+    xbuf[start..start + c.x.len()].copy_from_slice(&c.x);
+    (xbuf, start)
+}
+
+/// The exact dot products of `rows` with `c.x` (modulo 2^32 with 32-bit
+/// accumulators).
+fn exact_sums(c: &Case, rows: &[Vec<i32>]) -> Vec<i64> {
+    rows.iter()
+        .map(|r| {
+            let s: i64 = r
+                .iter()
+                .zip(&c.x)
+                .map(|(&w, &v)| i64::from(w) * i64::from(v))
+                .sum();
+            if c.wide {
+                s
+            } else {
+                i64::from(s as i32)
+            }
+        })
+        .collect()
+}
+
+/// `matrix_pairs` for `c`'s rows and its first row again (2, 3 or 5
+/// rows, so a last odd row too) stored one after another from
+/// `c.row_misalign[0]`: (Smlad over Emulated, Portable, exact).
+fn run_matrix(c: &Case) -> (Vec<i64>, Vec<i64>, Vec<i64>) {
+    let mut w = c.w.clone();
+    w.push(c.w[0].clone());
+    let rb = c.format.row_bytes(c.x.len());
+    let bytes: Vec<u8> = w.iter().flat_map(|r| encode(r, c.format)).collect();
+    let (buf, m) = placed(&bytes, c.row_misalign[0]);
+    let matrix = &as_bytes(&buf)[m..m + bytes.len()];
+    let xbuf = placed_x(c);
+    let x = &xbuf.0[xbuf.1..xbuf.1 + c.x.len()];
+    /// The pairs through `matrix_pairs` (when its check passes: the
+    /// aligned cases), the last odd row through the portable kernel, as
+    /// `MatrixKernel::rows` does.
+    fn fast<W: Packed>(matrix: &[u8], rb: usize, x: &[i16], n: usize) -> Vec<i64>
+    where
+        Emulated: Blocks<W, 2>,
+    {
+        let mut out = vec![[0i64; 2]; n / 2];
+        if !matrix_pairs::<W, Emulated>(matrix, rb, x, &mut out) {
+            return portable::<Portable<W, W::Sum>>(matrix, rb, x);
+        }
+        let short = &matrix[..2 * rb * (n / 2) - 1];
+        assert!(!matrix_pairs::<W, Emulated>(short, rb, x, &mut out));
+        let mut v: Vec<i64> = out.concat();
+        if n % 2 == 1 {
+            v.push(Portable::<W, W::Sum>::dot1([&matrix[(n - 1) * rb..]], x)[0]);
+        }
+        v
+    }
+    fn portable<K: Kernel>(matrix: &[u8], rb: usize, x: &[i16]) -> Vec<i64> {
+        matrix
+            .chunks_exact(rb)
+            .map(|r| K::dot1([r], x)[0])
+            .collect()
+    }
+    let n = w.len();
+    let exact = exact_sums(c, &w);
+    match c.format {
+        WeightFormat::I16 if c.wide => (
+            fast::<W16L>(matrix, rb, x, n),
+            portable::<Portable<W16L, i64>>(matrix, rb, x),
+            exact,
+        ),
+        WeightFormat::I16 => (
+            fast::<W16>(matrix, rb, x, n),
+            portable::<Portable<W16, i32>>(matrix, rb, x),
+            exact,
+        ),
+        _ => (
+            fast::<W8I>(matrix, rb, x, n),
+            portable::<Portable<W8I, i32>>(matrix, rb, x),
+            exact,
+        ),
+    }
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(2000))]
+
+    /// A whole matrix's rows (`matrix_pairs`, the CP factors' path: one
+    /// check for the matrix, then the two-row loop on each pair) equal the
+    /// portable kernel's and the exact sums, aligned or not; a matrix one
+    /// byte short is refused.
+    #[test]
+    fn smlad_matrix_rows_equal_portable(c in case()) {
+        let (fast, portable, exact) = run_matrix(&c);
+        prop_assert_eq!(&fast, &portable);
+        prop_assert_eq!(&portable, &exact);
+    }
 
     /// The DSP algorithm equals the portable kernel bit for bit (and both
     /// the exact sum, modulo 2^32 with 32-bit accumulators), for every tail
