@@ -630,7 +630,10 @@ fn column_scales(
 fn compensated(net: &Net, opts: &QuantOptions, l: usize) -> bool {
     opts.compensation_samples > 0
         && opts.weights_of(l) == WeightFormat::I8
-        && matches!(net.layers.get(l), Some(crate::net::NetLayer::Dense(_)))
+        && matches!(
+            net.layers.get(l),
+            Some(crate::net::NetLayer::Dense(_) | crate::net::NetLayer::Cp(_))
+        )
 }
 
 /// The inputs error-aware rounding takes its moments from:
@@ -747,7 +750,10 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
         let layer_moments = sequential
             .as_ref()
             .filter(|_| compensated(net, opts, li))
-            .map(|s| s.moments(layer.experts()));
+            .map(|s| match layer {
+                crate::net::NetLayer::Cp(c) => s.cp_moments(c),
+                _ => s.moments(layer.experts()),
+            });
         let spec = LayerSpec {
             index: li,
             in_scales: &in_scales,

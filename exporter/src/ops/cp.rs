@@ -23,9 +23,10 @@ use phasegate::ops::cp::{gate_l1_max, MidRecord};
 use crate::cp::als::{cp_als, sort_components, AlsOptions, AlsResult};
 use crate::encode::{QCp, QLayer};
 use crate::ops::dense::ExpertLayer;
+use crate::ops::dense::{integer_moments, round_compensated};
 use crate::quantise::{
     fixed_multiplier, layer_desc, layer_report, qmax, quantise_rows, requant_for, shift_to_i32,
-    LayerSpec, QuantError, QuantLayerReport, I32_MAX,
+    LayerSpec, QuantError, QuantLayerReport, Rows, I32_MAX,
 };
 
 const ACT_MAX: f64 = 32767.0;
@@ -101,6 +102,35 @@ impl CpLayer {
 /// few hundred frames, 4x none).
 pub const MID_HEADROOM_FACTOR: f64 = 2.5;
 
+/// Re-rounds `rows`' integer weights (their scales kept) for the least
+/// output error given the second moments `h` of their input (real units,
+/// `u` integer units per real unit), as [`crate::ops::dense`] rounds dense
+/// weights; the L1 norms and the noise follow.
+fn compensate(
+    rows: &mut Rows,
+    n_rows: usize,
+    cols: usize,
+    q: f64,
+    f: impl Fn(usize, usize) -> f64,
+    h: &Array2<f64>,
+    u: &[f64],
+) {
+    let exact = Array2::from_shape_fn((n_rows, cols), |(i, j)| f(i, j) * rows.scales[i]);
+    let Some(rounded) = round_compensated(&exact, &integer_moments(h, u), q) else {
+        return;
+    };
+    rows.noise = 0.0;
+    for i in 0..n_rows {
+        rows.l1[i] = 0;
+        for j in 0..cols {
+            let wq = rounded[(i, j)];
+            rows.q[i * cols + j] = wq as i32;
+            rows.l1[i] += wq.abs() as u64;
+            rows.noise += (f(i, j) - wq / rows.scales[i]).powi(2);
+        }
+    }
+}
+
 /// Quantises a CP layer for `spec`.
 pub fn quantise(
     l: &CpLayer,
@@ -164,10 +194,38 @@ pub fn quantise(
         |i, r| l.a[(i, r)] / zs[r],
         mid_power.as_deref(),
     );
+    // Error-aware rounding of both products (as dense layers get it), and
+    // A's mean error taken off the biases (the gate sums to one).
+    let cp_moments = spec.in_moments.and_then(|m| m.cp.as_ref());
+    let mut bt = bt;
+    let mut a = a;
+    let mut a_mean_err = vec![0.0; out];
+    if let Some(m) = cp_moments {
+        compensate(
+            &mut bt,
+            rank,
+            inp,
+            q,
+            |r, j| l.b[(j, r)] / spec.in_scales[j],
+            &m.input,
+            spec.in_scales,
+        );
+        let exact = |i: usize, r: usize| l.a[(i, r)] / zs[r];
+        compensate(&mut a, out, rank, q, exact, &m.mid, &zs);
+        for (i, e) in a_mean_err.iter_mut().enumerate() {
+            *e = (0..rank)
+                .map(|r| {
+                    (f64::from(a.q[i * rank + r]) - exact(i, r) * a.scales[i])
+                        * m.mid_mean[r]
+                        * zs[r]
+                })
+                .sum();
+        }
+    }
     let mut bias = vec![0i64; experts * out];
     for k in 0..experts {
         for i in 0..out {
-            bias[k * out + i] = (l.bias[k][i] * a.scales[i]).round() as i64;
+            bias[k * out + i] = (l.bias[k][i] * a.scales[i] - a_mean_err[i]).round() as i64;
         }
     }
     let fits = bt

@@ -97,7 +97,7 @@ const MIN_GATE_MEAN: f64 = 1e-3;
 
 /// `E[g^2 a a^T]` of the integer inputs `a_j = x_j u_j`, from the moments
 /// of `x` (real units) and the column scales `u`.
-fn integer_moments(second: &Array2<f64>, u: &[f64]) -> Array2<f64> {
+pub(crate) fn integer_moments(second: &Array2<f64>, u: &[f64]) -> Array2<f64> {
     Array2::from_shape_fn(second.dim(), |(j, l)| second[(j, l)] * u[j] * u[l])
 }
 
@@ -107,7 +107,11 @@ fn integer_moments(second: &Array2<f64>, u: &[f64]) -> Array2<f64> {
 /// small, not only `|dW|` (GPTQ: Frantar et al., 2022, with columns taken
 /// in decreasing order of `H_jj`, and [`DAMPING`]). `None` when `H` is not
 /// positive definite even with the damping.
-fn round_compensated(exact: &Array2<f64>, h: &Array2<f64>, q: f64) -> Option<Array2<f64>> {
+pub(crate) fn round_compensated(
+    exact: &Array2<f64>,
+    h: &Array2<f64>,
+    q: f64,
+) -> Option<Array2<f64>> {
     let (rows, n) = exact.dim();
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_by(|&a, &b| h[(b, b)].total_cmp(&h[(a, a)]));
