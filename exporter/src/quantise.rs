@@ -750,10 +750,8 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
         let layer_moments = sequential
             .as_ref()
             .filter(|_| compensated(net, opts, li))
-            .map(|s| match layer {
-                crate::net::NetLayer::Cp(c) => s.cp_moments(c),
-                _ => s.moments(layer.experts()),
-            });
+            .filter(|_| matches!(layer, crate::net::NetLayer::Dense(_)))
+            .map(|s| s.moments(layer.experts()));
         let spec = LayerSpec {
             index: li,
             in_scales: &in_scales,
@@ -773,22 +771,27 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
             headroom: opts.headroom,
             in_moments: layer_moments.as_ref(),
         };
-        // The samples go on through this layer only if a later one needs them.
-        let onward = sequential
-            .as_mut()
-            .filter(|_| (li + 1..net.layers.len()).any(|l| compensated(net, opts, l)));
-        let (ql, rep) = match (onward, layer) {
-            (Some(seq), crate::net::NetLayer::Dense(d)) => {
-                let (ql, rep, dequantised) = crate::ops::dense::quantise_dequantised(d, &spec)?;
-                seq.advance(net, layer, &crate::net::NetLayer::Dense(dequantised));
-                (ql, rep)
+        let (ql, rep, dequantised) = match (&sequential, layer) {
+            (Some(_), crate::net::NetLayer::Dense(d)) => {
+                let (ql, rep, deq) = crate::ops::dense::quantise_dequantised(d, &spec)?;
+                (ql, rep, Some(crate::net::NetLayer::Dense(deq)))
             }
-            (Some(seq), _) => {
-                seq.advance(net, layer, layer);
-                layer.quantise(&spec)?
+            (Some(seq), crate::net::NetLayer::Cp(c)) if compensated(net, opts, li) => {
+                let (ql, rep, deq) = crate::ops::cp::quantise_sequential(c, &spec, seq)?;
+                (ql, rep, Some(crate::net::NetLayer::Cp(deq)))
             }
-            (None, _) => layer.quantise(&spec)?,
+            _ => {
+                let (ql, rep) = layer.quantise(&spec)?;
+                (ql, rep, None)
+            }
         };
+        // The samples go on through this layer only if a later one needs them.
+        if let Some(seq) = sequential
+            .as_mut()
+            .filter(|_| (li + 1..net.layers.len()).any(|l| compensated(net, opts, l)))
+        {
+            seq.advance(net, layer, dequantised.as_ref().unwrap_or(layer));
+        }
         reports.push(QuantLayerReport {
             calibrated_max: ranges.layer_max(li),
             ..rep

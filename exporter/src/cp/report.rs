@@ -197,6 +197,7 @@ pub fn decompose_all(dense: &Net, rank: usize, als: &AlsOptions) -> (Net, Vec<La
 /// Measures every rank of `ranks` on `dense`, with blobs of every format
 /// of `formats` (int8 weights rounded error-aware on
 /// `compensation_samples` inputs, to nearest for 0).
+#[allow(clippy::too_many_arguments)] // each a knob of `exporter cp-report`
 pub fn measure_ranks(
     dense: &Net,
     ranks: &[usize],

@@ -161,7 +161,7 @@ pub(crate) fn round_compensated(
 /// `l` ([`DAMPING`] times the mean of `H~`'s diagonal) that keeps the
 /// target at the weights where the samples say little. `None` when the
 /// system cannot be solved.
-fn target_weights(
+pub(crate) fn target_weights(
     exact: &Array2<f64>,
     h: &Array2<f64>,
     cross: &Array2<f64>,

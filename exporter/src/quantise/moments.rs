@@ -29,26 +29,10 @@ pub struct LayerMoments {
     pub first: Vec<Array1<f64>>,
     /// `E[g_k]` per expert.
     pub gate_mean: Vec<f64>,
-    /// The moments a CP layer's two products need (then the per-expert
-    /// fields are empty).
-    pub cp: Option<CpMoments>,
     /// When the input comes from the already quantised layers before
     /// (`second` and `first` are then its moments), what the float
     /// network's own input `x` does beside it ([`Sequential`]).
     pub float: Option<FloatSide>,
-}
-
-/// What the two products of a CP layer see: `B^T` the layer's input `x`
-/// (its error reaches the output through the core and `A` whatever the
-/// phase), `A` the middle vector `u = (sum_k g_k d_k) . (B^T x)`.
-#[derive(Clone, Debug, PartialEq)]
-pub struct CpMoments {
-    /// `E[x x^T]` (`in x in`), real units.
-    pub input: Array2<f64>,
-    /// `E[u u^T]` (`rank x rank`), real units.
-    pub mid: Array2<f64>,
-    /// `E[u]`.
-    pub mid_mean: Array1<f64>,
 }
 
 /// The float network's input `x` beside the quantised chain's input `x~`,
@@ -68,7 +52,6 @@ impl LayerMoments {
             second: vec![Array2::zeros((dim, dim)); experts],
             first: vec![Array1::zeros(dim); experts],
             gate_mean: vec![0.0; experts],
-            cp: None,
             float: None,
         }
     }
@@ -184,35 +167,21 @@ impl Sequential {
         m.finish(n.max(1) as f64)
     }
 
-    /// The moments of the current layer's input and middle vector for the
-    /// CP layer `cp`.
-    pub fn cp_moments(&self, cp: &crate::net::CpLayer) -> LayerMoments {
-        let (dim, rank) = (self.quantised.ncols(), cp.rank());
-        let mut m = CpMoments {
-            input: Array2::zeros((dim, dim)),
-            mid: Array2::zeros((rank, rank)),
-            mid_mean: Array1::zeros(rank),
-        };
-        let n = self.quantised.nrows();
-        for start in (0..n).step_by(BIG_CHUNK) {
-            let rows = ndarray::s![start..(start + BIG_CHUNK).min(n), ..];
-            let xq = self.quantised.slice(rows);
-            m.input += &xq.t().dot(&xq);
-            let u = xq.dot(&cp.b) * self.gate.slice(rows).dot(&cp.d);
-            m.mid += &u.t().dot(&u);
-            m.mid_mean += &u.sum_axis(Axis(0));
-        }
-        let n = n.max(1) as f64;
-        m.input /= n;
-        m.mid /= n;
-        m.mid_mean /= n;
-        LayerMoments {
-            second: Vec::new(),
-            first: Vec::new(),
-            gate_mean: Vec::new(),
-            cp: Some(m),
-            float: None,
-        }
+    /// The current layer's input in the float chain and in the quantised
+    /// chain (samples x in; `None` while they are the same), and the gate
+    /// coefficients (samples x experts).
+    pub fn inputs(
+        &self,
+    ) -> (
+        ArrayView2<'_, f64>,
+        Option<ArrayView2<'_, f64>>,
+        ArrayView2<'_, f64>,
+    ) {
+        (
+            self.float.view(),
+            (!self.same).then(|| self.quantised.view()),
+            self.gate.view(),
+        )
     }
 
     /// Moves on to the next layer: `exact` is the float network's layer
