@@ -116,7 +116,12 @@ fn int8_cp_blob_error_is_within_1_3x_of_the_dense_int8_blob() {
 fn a_style_attaches_to_the_real_base_and_tracks_its_float_reference() {
     let Some(dir) = pfnn_dir() else { return };
     let dense = load(&dir);
-    let (base, _) = export(&dense, None, &QuantOptions::default()).unwrap();
+    // The base as `exporter pfnn` writes it by default (error-aware rounding).
+    let base_opts = QuantOptions {
+        compensation_samples: exporter::quantise::DEFAULT_COMPENSATION_SAMPLES,
+        ..QuantOptions::default()
+    };
+    let (base, _) = export(&dense, None, &base_opts).unwrap();
     let net = dense.clone();
     let (h, r) = (512, 30);
     let f =
@@ -141,8 +146,10 @@ fn a_style_attaches_to_the_real_base_and_tracks_its_float_reference() {
         rep.float32_bytes
     );
     assert!(rep.range_used < 1.0);
+    // Issue 13: the styled int8 blob (base + int8 CP adapter) within 1.3x
+    // of the base int8 blob's error, each against its own float network.
     assert!(
-        rep.fixed_vs_float.rms < 1.5 * rep.base_fixed_vs_float.rms + 0.05,
+        rep.fixed_vs_float.rms <= 1.3 * rep.base_fixed_vs_float.rms,
         "{rep:?}"
     );
 }
