@@ -22,3 +22,44 @@ impl From<GatingArg> for GatingMode {
         }
     }
 }
+
+/// `--rounding` of the command lines: how int8 dense weights are rounded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum RoundingArg {
+    /// Each weight to nearest.
+    Nearest,
+    /// For the least output error on calibration inputs (GPTQ, layer after
+    /// layer, aimed at the float network; docs/fixed-point.md).
+    Compensated,
+}
+
+/// The `compensation_samples` of [`crate::quantise::QuantOptions`] that
+/// `--rounding` and `--compensation-samples` ask for on `net` (0 rounds to
+/// nearest). Without `--rounding`, a chain (PFNN-shaped network) is
+/// rounded error-aware, with
+/// [`DEFAULT_COMPENSATION_SAMPLES`](crate::quantise::DEFAULT_COMPENSATION_SAMPLES)
+/// unless `--compensation-samples` says otherwise; a graph (OMG) is
+/// rounded to nearest unless `--compensation-samples` is given (error-aware
+/// rounding has not been measured on the OMG models yet).
+pub fn compensation_samples(
+    net: &crate::net::Net,
+    rounding: Option<RoundingArg>,
+    samples: Option<usize>,
+) -> Result<usize, String> {
+    let chain = matches!(net.wiring, crate::net::Wiring::Chain);
+    match (rounding, samples) {
+        (Some(RoundingArg::Nearest), Some(n)) if n > 0 => Err(format!(
+            "--compensation-samples {n} is for --rounding compensated, not nearest"
+        )),
+        (Some(RoundingArg::Nearest), _) => Ok(0),
+        (Some(RoundingArg::Compensated), Some(0)) => {
+            Err("--rounding compensated needs --compensation-samples above 0".into())
+        }
+        (Some(RoundingArg::Compensated), n) => {
+            Ok(n.unwrap_or(crate::quantise::DEFAULT_COMPENSATION_SAMPLES))
+        }
+        (None, Some(n)) => Ok(n),
+        (None, None) if chain => Ok(crate::quantise::DEFAULT_COMPENSATION_SAMPLES),
+        (None, None) => Ok(0),
+    }
+}

@@ -25,6 +25,7 @@ struct Cli {
 }
 
 use exporter::cli_args::GatingArg as Gating;
+use exporter::cli_args::RoundingArg;
 
 #[derive(clap::Args)]
 struct QuantArgs {
@@ -50,13 +51,17 @@ struct OutputArgs {
     /// without clipping (rounded up to a power of two; wider = coarser).
     #[arg(long, default_value_t = 8.0)]
     input_range_sigma: f64,
-    /// Round int8 dense weights for the least output error (GPTQ with bias
-    /// correction, docs/fixed-point.md) from this many calibration inputs
-    /// (16384 is a good start); 0 rounds to nearest. Opt-in: on the real
-    /// PFNN it lowers the output error by a third but makes the crouching
-    /// rollout worse.
-    #[arg(long, default_value_t = 0)]
-    compensation_samples: usize,
+    /// How int8 dense weights are rounded: for the least output error on
+    /// calibration inputs (GPTQ layer after layer with bias correction,
+    /// docs/fixed-point.md), or each to nearest. Default: compensated for
+    /// `pfnn` and `npz`, nearest for `graph` and `omg`.
+    #[arg(long, value_enum)]
+    rounding: Option<RoundingArg>,
+    /// Calibration inputs of compensated rounding (default 16384, drawn
+    /// from the normalisation statistics; --calibration rows come on top);
+    /// on `graph` and `omg`, a count above 0 turns compensated rounding on.
+    #[arg(long)]
+    compensation_samples: Option<usize>,
     /// Recorded network inputs (an .npz with X (N, inputs) and phase (N,),
     /// as `host-sim rollout-dataset` writes) added to the normal samples
     /// of the range calibration and of the error-aware rounding.
@@ -236,13 +241,21 @@ fn export(
         weights,
         headroom,
         input_range_sigma: q.input_range_sigma,
-        compensation_samples: q.compensation_samples,
+        compensation_samples: exporter::cli_args::compensation_samples(
+            net,
+            q.rounding,
+            q.compensation_samples,
+        )
+        .map_err(anyhow::Error::msg)?,
         calibration_data,
         ..QuantOptions::default()
     };
     let (blob, report) = match q.int16_budget {
         None => {
-            let pb = spinner("calibrating and quantising");
+            let pb = spinner(&match opts.compensation_samples {
+                0 => "calibrating and quantising".to_string(),
+                n => format!("calibrating and quantising, error-aware rounding on {n} samples"),
+            });
             let r = exporter::export::export(net, residual, &opts)
                 .with_context(|| source.display().to_string())?;
             pb.finish_and_clear();

@@ -54,10 +54,10 @@ pub struct QuantOptions {
     )]
     pub layer_weights: BTreeMap<usize, WeightFormat>,
     /// Calibration samples for error-aware rounding of int8 dense weights
-    /// (their inputs' second moments, see [`moments`]); 0 (the default)
-    /// rounds every weight to nearest. Opt-in until it is calibrated on
-    /// recorded rollouts: on the real PFNN, 16,384 normal inputs cut the
-    /// output RMS by a third but made the crouch-walk rollout worse.
+    /// (their inputs' second moments, see [`moments`]); 0 rounds every
+    /// weight to nearest. 0 here, where tests and fixtures export many
+    /// times; the command lines choose per network
+    /// ([`crate::cli_args::compensation_samples`]: chains error-aware).
     pub compensation_samples: usize,
     /// Recorded inputs (`--calibration`, for example the float controller's
     /// rollouts from `host-sim rollout-dataset`): added to the normal
@@ -66,6 +66,12 @@ pub struct QuantOptions {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub calibration_data: Option<Recorded>,
 }
+
+/// Calibration samples of error-aware rounding when the command line asks
+/// for it without a count ([`crate::cli_args::compensation_samples`]): on
+/// the real PFNN, 8,192 gave a pooled output RMS of 0.0914 and 16,384
+/// 0.0891 (docs/fixed-point.md).
+pub const DEFAULT_COMPENSATION_SAMPLES: usize = 16_384;
 
 /// Recorded calibration inputs and where they came from.
 #[derive(Clone, Debug)]
@@ -620,17 +626,14 @@ fn column_scales(
     best
 }
 
-/// The input moments of the chain's int8 dense layers, from
-/// `compensation_samples` inputs drawn like the calibration's.
-fn chain_moments(net: &Net, opts: &QuantOptions) -> Vec<Option<moments::LayerMoments>> {
-    if opts.compensation_samples == 0 {
-        return vec![None; net.layers.len()];
-    }
-    let samples = compensation_inputs(net, opts);
-    moments::chain_moments(net, &samples, |l| {
-        opts.weights_of(l) == WeightFormat::I8
-            && matches!(net.layers.get(l), Some(crate::net::NetLayer::Dense(_)))
-    })
+/// Whether layer `l` of a chain gets error-aware rounding under `opts`.
+fn compensated(net: &Net, opts: &QuantOptions, l: usize) -> bool {
+    opts.compensation_samples > 0
+        && opts.weights_of(l) == WeightFormat::I8
+        && matches!(
+            net.layers.get(l),
+            Some(crate::net::NetLayer::Dense(_) | crate::net::NetLayer::Cp(_))
+        )
 }
 
 /// The inputs error-aware rounding takes its moments from:
@@ -674,7 +677,11 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
     let samples = crate::calibrate::calibration_inputs(net, opts);
     let ranges = calibrate(net, &samples);
     let input_frac = frac_for(opts.input_range_sigma, 1.0, 15);
-    let moments = chain_moments(net, opts);
+    // Error-aware rounding runs the samples through the layers quantised
+    // so far, so that each layer can make up for the ones before it.
+    let mut sequential = (0..net.layers.len())
+        .any(|l| compensated(net, opts, l))
+        .then(|| moments::Sequential::new(net, &compensation_inputs(net, opts)));
 
     // Each node's input columns get their own scale (integer units per
     // real unit): as fine as the calibrated range allows (the cap), lowered
@@ -740,6 +747,11 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
                 }
             })
             .collect();
+        let layer_moments = sequential
+            .as_ref()
+            .filter(|_| compensated(net, opts, li))
+            .filter(|_| matches!(layer, crate::net::NetLayer::Dense(_)))
+            .map(|s| s.moments(layer.experts()));
         let spec = LayerSpec {
             index: li,
             in_scales: &in_scales,
@@ -757,9 +769,29 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
             in_power: Some(&ranges.input_ms[li]),
             mid_power: ranges.mid_ms[li].as_deref(),
             headroom: opts.headroom,
-            in_moments: moments.get(li).and_then(Option::as_ref),
+            in_moments: layer_moments.as_ref(),
         };
-        let (ql, rep) = layer.quantise(&spec)?;
+        let (ql, rep, dequantised) = match (&sequential, layer) {
+            (Some(_), crate::net::NetLayer::Dense(d)) => {
+                let (ql, rep, deq) = crate::ops::dense::quantise_dequantised(d, &spec)?;
+                (ql, rep, Some(crate::net::NetLayer::Dense(deq)))
+            }
+            (Some(seq), crate::net::NetLayer::Cp(c)) if compensated(net, opts, li) => {
+                let (ql, rep, deq) = crate::ops::cp::quantise_sequential(c, &spec, seq)?;
+                (ql, rep, Some(crate::net::NetLayer::Cp(deq)))
+            }
+            _ => {
+                let (ql, rep) = layer.quantise(&spec)?;
+                (ql, rep, None)
+            }
+        };
+        // The samples go on through this layer only if a later one needs them.
+        if let Some(seq) = sequential
+            .as_mut()
+            .filter(|_| (li + 1..net.layers.len()).any(|l| compensated(net, opts, l)))
+        {
+            seq.advance(net, layer, dequantised.as_ref().unwrap_or(layer));
+        }
         reports.push(QuantLayerReport {
             calibrated_max: ranges.layer_max(li),
             ..rep

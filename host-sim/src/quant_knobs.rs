@@ -9,14 +9,19 @@ use exporter::net::Net;
 use exporter::quantise::{QuantOptions, Recorded};
 use std::path::PathBuf;
 
-/// `--compensation-samples` and `--calibration`, as `exporter` takes them;
-/// applied to the int8 blob.
+/// `--rounding`, `--compensation-samples`, `--calibration` and the int16
+/// layers, as `exporter` takes them (with its defaults: a PFNN's int8 blob
+/// is rounded error-aware, an OMG graph's to nearest); applied to the int8
+/// blob.
 #[derive(Clone, Debug, Default, clap::Args)]
 pub struct Int8Knobs {
-    /// Error-aware rounding of the int8 blob from this many normal samples
-    /// (exporter --compensation-samples); 0 rounds to nearest.
-    #[arg(long, default_value_t = 0)]
-    pub compensation_samples: usize,
+    /// Rounding of the int8 blob's dense weights (exporter --rounding).
+    #[arg(long, value_enum)]
+    pub rounding: Option<exporter::cli_args::RoundingArg>,
+    /// Calibration inputs of compensated rounding (exporter
+    /// --compensation-samples).
+    #[arg(long)]
+    pub compensation_samples: Option<usize>,
     /// Recorded inputs added to the int8 blob's calibration
     /// (exporter --calibration; `host-sim rollout-dataset` writes them).
     #[arg(long, value_name = "ROLLOUTS.npz")]
@@ -56,7 +61,12 @@ impl Int8Knobs {
             .map(|p| Recorded::read(p, net.input_dim()))
             .transpose()?;
         Ok(QuantOptions {
-            compensation_samples: self.compensation_samples,
+            compensation_samples: exporter::cli_args::compensation_samples(
+                net,
+                self.rounding,
+                self.compensation_samples,
+            )
+            .map_err(anyhow::Error::msg)?,
             calibration_data,
             layer_weights: self
                 .int16_layers

@@ -41,17 +41,23 @@ fn error_aware_rounding_lowers_the_real_pfnn_int8_error() {
         };
         export(&net, residual, &opts).unwrap().0
     };
-    assert_eq!(QuantOptions::default().compensation_samples, 0, "opt-in");
-    let (nearest, aware) = (int8(0), int8(16_384));
+    // The library's default rounds to nearest (fixtures and tests export
+    // often); the command lines default to error-aware for a PFNN.
+    assert_eq!(QuantOptions::default().compensation_samples, 0);
+    let (nearest, aware) = (
+        int8(0),
+        int8(exporter::quantise::DEFAULT_COMPENSATION_SAMPLES),
+    );
     assert_eq!(nearest.len(), aware.len(), "same settings, same blob size");
     let (rn, pn, mn) = errors(&net, &nearest);
     let (ra, pa, ma) = errors(&net, &aware);
     println!("to nearest:  rms per spread {rn:.4?}, pooled {pn:.4}, max {mn:.3}");
     println!("error-aware: rms per spread {ra:.4?}, pooled {pa:.4}, max {ma:.3}");
-    // Measured: pooled 0.1623 -> 0.1019, at spread 1 0.2752 -> 0.1703.
-    assert!(pa < 0.11 && pa < 0.7 * pn, "pooled {pa} vs {pn}");
-    assert!(ra[3] < 0.18, "spread 1: {}", ra[3]);
-    assert!(ma < 4.0, "max {ma}");
+    // Measured 2026-11-30: pooled 0.1623 -> 0.0891, at spread 1
+    // 0.2752 -> 0.1506, max 4.10 -> 2.34.
+    assert!(pa <= 0.10 && pa < 0.6 * pn, "pooled {pa} vs {pn}");
+    assert!(ra[3] <= 0.17, "spread 1: {}", ra[3]);
+    assert!(ma <= 4.0, "max {ma}");
 }
 
 /// `--int16-budget` on the default model: no budget is the plain int8

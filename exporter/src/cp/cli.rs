@@ -103,6 +103,13 @@ pub struct CpArgs {
     /// Samples for the output-error measurement.
     #[arg(long, default_value_t = 256)]
     pub samples: usize,
+    /// How int8 weights are rounded (as `exporter pfnn --rounding`; both
+    /// CP factors, and dense layers kept): default compensated.
+    #[arg(long, value_enum)]
+    pub rounding: Option<crate::cli_args::RoundingArg>,
+    /// Calibration inputs of compensated rounding (default 16384).
+    #[arg(long)]
+    pub compensation_samples: Option<usize>,
     /// Where to write the blob.
     #[arg(short = 'o', long = "output")]
     pub output: PathBuf,
@@ -333,6 +340,12 @@ pub fn cp(args: &CpArgs) -> Result<()> {
     let y_cp = run_float(&net, &s.inputs, &s.phases);
     let opts = QuantOptions {
         weights: args.weight_bits,
+        compensation_samples: crate::cli_args::compensation_samples(
+            &net,
+            args.rounding,
+            args.compensation_samples,
+        )
+        .map_err(anyhow::Error::msg)?,
         ..QuantOptions::default()
     };
     let (blob, blob_report) = export(&net, None, &opts)?;
@@ -560,6 +573,11 @@ pub struct CpReportArgs {
     /// Also write the report as JSON.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// How the blobs' int8 weights are rounded (dense and CP alike; as
+    /// `exporter pfnn --rounding`): default nearest here, where many
+    /// blobs are exported.
+    #[arg(long, value_enum, default_value = "nearest")]
+    pub rounding: crate::cli_args::RoundingArg,
 }
 
 /// Runs `exporter cp-report`.
@@ -576,6 +594,12 @@ pub fn cp_report(args: &CpReportArgs) -> Result<()> {
         args.samples,
         args.seed,
         &args.weight_bits,
+        match args.rounding {
+            crate::cli_args::RoundingArg::Nearest => 0,
+            crate::cli_args::RoundingArg::Compensated => {
+                crate::quantise::DEFAULT_COMPENSATION_SAMPLES
+            }
+        },
         &als,
         |m| eprintln!("{m}"),
     )?;

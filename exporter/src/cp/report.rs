@@ -195,13 +195,16 @@ pub fn decompose_all(dense: &Net, rank: usize, als: &AlsOptions) -> (Net, Vec<La
 }
 
 /// Measures every rank of `ranks` on `dense`, with blobs of every format
-/// of `formats`.
+/// of `formats` (int8 weights rounded error-aware on
+/// `compensation_samples` inputs, to nearest for 0).
+#[allow(clippy::too_many_arguments)] // each a knob of `exporter cp-report`
 pub fn measure_ranks(
     dense: &Net,
     ranks: &[usize],
     samples: usize,
     seed: u64,
     formats: &[WeightFormat],
+    compensation_samples: usize,
     als: &AlsOptions,
     mut progress: impl FnMut(&str),
 ) -> Result<CpReport> {
@@ -216,6 +219,7 @@ pub fn measure_ranks(
     let (ymean, ystd) = (dense.ymean.to_vec(), dense.ystd.to_vec());
     let opts = |weights| QuantOptions {
         weights,
+        compensation_samples,
         ..QuantOptions::default()
     };
     let y_dense: Vec<Vec<f64>> = s

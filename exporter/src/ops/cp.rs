@@ -16,16 +16,18 @@
 //!   (`phasegate::ops::cp::CpLayer::check`), so a blob this writes is
 //!   never refused and never saturates before its final i16.
 
-use ndarray::{Array1, Array2};
+use ndarray::{Array1, Array2, ArrayView2, Axis};
 use phasegate::blob::{AccWidth, LayerOp, Section};
 use phasegate::ops::cp::{gate_l1_max, MidRecord};
 
 use crate::cp::als::{cp_als, sort_components, AlsOptions, AlsResult};
 use crate::encode::{QCp, QLayer};
 use crate::ops::dense::ExpertLayer;
+use crate::ops::dense::{integer_moments, round_compensated, target_weights};
+use crate::quantise::moments::Sequential;
 use crate::quantise::{
     fixed_multiplier, layer_desc, layer_report, qmax, quantise_rows, requant_for, shift_to_i32,
-    LayerSpec, QuantError, QuantLayerReport, I32_MAX,
+    LayerSpec, QuantError, QuantLayerReport, Rows, I32_MAX,
 };
 
 const ACT_MAX: f64 = 32767.0;
@@ -101,11 +103,74 @@ impl CpLayer {
 /// few hundred frames, 4x none).
 pub const MID_HEADROOM_FACTOR: f64 = 2.5;
 
+/// Re-rounds `rows`' integer weights (their scales kept) for the least
+/// output error, as [`crate::ops::dense`] rounds dense weights: `h` the
+/// second moments of their input as the blob computes it, `cross` (where
+/// that differs from the float network's) its cross moments with the float
+/// input, both real units, `u` integer units per real unit. The L1 norms
+/// and the noise follow.
+#[allow(clippy::too_many_arguments)]
+fn compensate(
+    rows: &mut Rows,
+    n_rows: usize,
+    cols: usize,
+    q: f64,
+    f: impl Fn(usize, usize) -> f64,
+    h: &Array2<f64>,
+    cross: Option<&Array2<f64>>,
+    u: &[f64],
+) {
+    let exact = Array2::from_shape_fn((n_rows, cols), |(i, j)| f(i, j) * rows.scales[i]);
+    let h = integer_moments(h, u);
+    let target = cross
+        .and_then(|c| target_weights(&exact, &h, &integer_moments(c, u)))
+        .unwrap_or(exact);
+    let Some(rounded) = round_compensated(&target, &h, q) else {
+        return;
+    };
+    rows.noise = 0.0;
+    for i in 0..n_rows {
+        rows.l1[i] = 0;
+        for j in 0..cols {
+            let wq = rounded[(i, j)];
+            rows.q[i * cols + j] = wq as i32;
+            rows.l1[i] += wq.abs() as u64;
+            rows.noise += (f(i, j) - wq / rows.scales[i]).powi(2);
+        }
+    }
+}
+
+/// `x^T y / rows`.
+fn moment(x: &ArrayView2<'_, f64>, y: &ArrayView2<'_, f64>) -> Array2<f64> {
+    x.t().dot(y) / x.nrows().max(1) as f64
+}
+
 /// Quantises a CP layer for `spec`.
 pub fn quantise(
     l: &CpLayer,
     spec: &LayerSpec<'_>,
 ) -> Result<(QLayer, QuantLayerReport), QuantError> {
+    quantise_with(l, spec, None).map(|(ql, rep, _)| (ql, rep))
+}
+
+/// [`quantise`] with both products rounded error-aware on `seq`'s samples
+/// (`B^T` against the layer's input, `A` against the middle vector as the
+/// quantised `B^T` and cores give it, each aimed at the float network's,
+/// and `A`'s mean error taken off the biases: the gate sums to one), and
+/// the layer as the blob computes it, in real units.
+pub fn quantise_sequential(
+    l: &CpLayer,
+    spec: &LayerSpec<'_>,
+    seq: &Sequential,
+) -> Result<(QLayer, QuantLayerReport, CpLayer), QuantError> {
+    quantise_with(l, spec, Some(seq))
+}
+
+fn quantise_with(
+    l: &CpLayer,
+    spec: &LayerSpec<'_>,
+    seq: Option<&Sequential>,
+) -> Result<(QLayer, QuantLayerReport, CpLayer), QuantError> {
     let (rank, experts) = (l.rank(), l.experts());
     let (out, inp) = (l.a.nrows(), l.b.nrows());
     let q = qmax(spec.format);
@@ -122,13 +187,30 @@ pub fn quantise(
             .map(|(m, u)| m * u * u)
             .collect()
     });
-    let bt = quantise_rows(
+    let mut bt = quantise_rows(
         rank,
         inp,
         q,
         |r, j| l.b[(j, r)] / spec.in_scales[j],
         in_power.as_deref(),
     );
+    if let Some((x, xq, _)) = seq.map(Sequential::inputs) {
+        let input = xq.as_ref().unwrap_or(&x);
+        let cross = xq.as_ref().map(|xq| moment(&x, xq));
+        compensate(
+            &mut bt,
+            rank,
+            inp,
+            q,
+            |r, j| l.b[(j, r)] / spec.in_scales[j],
+            &moment(input, input),
+            cross.as_ref(),
+            spec.in_scales,
+        );
+    }
+    let b_deq = Array2::from_shape_fn((inp, rank), |(j, r)| {
+        f64::from(bt.q[r * inp + j]) * spec.in_scales[j] / bt.scales[r]
+    });
     // Cores: int16, one scale per component shared by the experts.
     let mut cores = vec![0i16; experts * rank];
     let mut core_scales = vec![1.0; rank];
@@ -164,10 +246,42 @@ pub fn quantise(
         |i, r| l.a[(i, r)] / zs[r],
         mid_power.as_deref(),
     );
+    let d_deq = Array2::from_shape_fn((experts, rank), |(k, r)| {
+        f64::from(cores[k * rank + r]) / core_scales[r]
+    });
+    let mut a = a;
+    let mut a_mean_err = vec![0.0; out];
+    if let Some((x, xq, g)) = seq.map(Sequential::inputs) {
+        let blend = g.dot(&l.d);
+        let u = x.dot(&l.b) * &blend;
+        let uq = xq.as_ref().unwrap_or(&x).dot(&b_deq) * g.dot(&d_deq);
+        let exact = |i: usize, r: usize| l.a[(i, r)] / zs[r];
+        compensate(
+            &mut a,
+            out,
+            rank,
+            q,
+            exact,
+            &moment(&uq.view(), &uq.view()),
+            Some(&moment(&u.view(), &uq.view())),
+            &zs,
+        );
+        let n = x.nrows().max(1) as f64;
+        let (mean_u, mean_uq) = (u.sum_axis(Axis(0)) / n, uq.sum_axis(Axis(0)) / n);
+        for (i, e) in a_mean_err.iter_mut().enumerate() {
+            *e = (0..rank)
+                .map(|r| {
+                    (f64::from(a.q[i * rank + r]) * mean_uq[r]
+                        - exact(i, r) * a.scales[i] * mean_u[r])
+                        * zs[r]
+                })
+                .sum();
+        }
+    }
     let mut bias = vec![0i64; experts * out];
     for k in 0..experts {
         for i in 0..out {
-            bias[k * out + i] = (l.bias[k][i] * a.scales[i]).round() as i64;
+            bias[k * out + i] = (l.bias[k][i] * a.scales[i] - a_mean_err[i]).round() as i64;
         }
     }
     let fits = bt
@@ -207,6 +321,16 @@ pub fn quantise(
         let bound = ((u128::from(a.l1[i]) << 15) << 16) + g1 * bmax;
         requant.push(requant_for(spec, i, a.scales[i], bound)?);
     }
+    let dequantised = CpLayer {
+        a: Array2::from_shape_fn((out, rank), |(i, r)| {
+            f64::from(a.q[i * rank + r]) * zs[r] / a.scales[i]
+        }),
+        b: b_deq,
+        d: d_deq,
+        bias: (0..experts)
+            .map(|k| Array1::from_shape_fn(out, |i| bias[k * out + i] as f64 / a.scales[i]))
+            .collect(),
+    };
     let ql = QLayer {
         desc: layer_desc(
             spec,
@@ -236,5 +360,5 @@ pub fn quantise(
         bt.sig + a.sig,
         bt.noise + a.noise,
     );
-    Ok((ql, rep))
+    Ok((ql, rep, dequantised))
 }

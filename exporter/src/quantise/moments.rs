@@ -10,7 +10,7 @@
 //! `E[z z^T]` (`z = g (x) x`) gave an output RMS 1 % lower for five times
 //! the export time.
 
-use ndarray::{Array1, Array2, Axis};
+use ndarray::{Array1, Array2, ArrayView2, Axis};
 
 use crate::calibrate::Samples;
 use phasegate::blob::GateSource;
@@ -29,6 +29,21 @@ pub struct LayerMoments {
     pub first: Vec<Array1<f64>>,
     /// `E[g_k]` per expert.
     pub gate_mean: Vec<f64>,
+    /// When the input comes from the already quantised layers before
+    /// (`second` and `first` are then its moments), what the float
+    /// network's own input `x` does beside it ([`Sequential`]).
+    pub float: Option<FloatSide>,
+}
+
+/// The float network's input `x` beside the quantised chain's input `x~`,
+/// per expert: what lets a layer's rounding aim at the float network's
+/// output rather than at its own float output on already distorted inputs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FloatSide {
+    /// `E[g_k^2 x x~^T]` per expert (`in x in`), real units.
+    pub cross: Vec<Array2<f64>>,
+    /// `E[g_k x]` per expert, real units.
+    pub first: Vec<Array1<f64>>,
 }
 
 impl LayerMoments {
@@ -37,16 +52,17 @@ impl LayerMoments {
             second: vec![Array2::zeros((dim, dim)); experts],
             first: vec![Array1::zeros(dim); experts],
             gate_mean: vec![0.0; experts],
+            float: None,
         }
     }
 
     /// Adds a chunk: `x` (samples x in) and the gate `g` (samples x experts).
-    fn add(&mut self, x: &Array2<f64>, g: &Array2<f64>) {
+    fn add(&mut self, x: ArrayView2<'_, f64>, g: ArrayView2<'_, f64>) {
         for (k, gk) in g.columns().into_iter().enumerate() {
             if gk.iter().all(|&v| v == 0.0) {
                 continue;
             }
-            let z = x * &gk.insert_axis(Axis(1));
+            let z = &x * &gk.insert_axis(Axis(1));
             self.first[k] += &z.sum_axis(Axis(0));
             self.gate_mean[k] += gk.sum();
             self.second[k] += &z.t().dot(&z);
@@ -63,57 +79,126 @@ impl LayerMoments {
         for g in &mut self.gate_mean {
             *g /= n;
         }
+        if let Some(f) = &mut self.float {
+            for m in &mut f.cross {
+                *m /= n;
+            }
+            for v in &mut f.first {
+                *v /= n;
+            }
+        }
         self
     }
 }
 
-/// The moments of every layer `l` of a chain for which `wanted(l)` (the
-/// other layers get `None`), over `samples`. The chain runs on whole
-/// chunks of samples at once (matrix products, not one vector at a time).
-pub fn chain_moments(
-    net: &Net,
-    samples: &Samples,
-    wanted: impl Fn(usize) -> bool,
-) -> Vec<Option<LayerMoments>> {
-    let mut out: Vec<Option<LayerMoments>> = net
-        .layers
-        .iter()
-        .enumerate()
-        .map(|(l, layer)| wanted(l).then(|| LayerMoments::new(layer.experts(), layer.in_dim())))
-        .collect();
-    let depth = out.iter().rposition(Option::is_some).map_or(0, |l| l + 1);
-    let experts = net.experts();
-    for (xs, ps) in samples
-        .inputs
-        .chunks(CHUNK)
-        .zip(samples.phases.chunks(CHUNK))
-    {
-        let mut g = Array2::zeros((ps.len(), experts));
-        for (r, &p) in ps.iter().enumerate() {
+/// Error-aware rounding layer after layer (GPTQ's sequential mode, with
+/// the float network as the target): the calibration samples are run
+/// through the float chain and, beside it, through the layers quantised so
+/// far (their dequantised weights). Layer `l`'s moments are taken on the
+/// quantised chain's input `x~` together with the float input `x`, so its
+/// rounding can make up for part of the error of the layers before it
+/// (`crate::ops::dense`), rather than only keeping its own error small.
+pub struct Sequential {
+    /// Gate coefficients, samples x experts.
+    gate: Array2<f64>,
+    /// The float chain's input of the current layer, samples x in.
+    float: Array2<f64>,
+    /// The quantised chain's input of the current layer, samples x in.
+    quantised: Array2<f64>,
+    /// Whether the two still agree (before the first layer).
+    same: bool,
+    /// Layers advanced through.
+    layer: usize,
+}
+
+impl Sequential {
+    /// The samples at the chain's input.
+    pub fn new(net: &Net, samples: &Samples) -> Self {
+        let mut gate = Array2::zeros((samples.inputs.len(), net.experts()));
+        for (r, &p) in samples.phases.iter().enumerate() {
             for (k, v) in net.gate(p) {
-                if let Some(c) = g.get_mut((r, k)) {
+                if let Some(c) = gate.get_mut((r, k)) {
                     *c = v;
                 }
             }
         }
-        let mut h = Array2::from_shape_fn((xs.len(), net.input_dim()), |(r, j)| {
-            (xs[r][j] - net.xmean[j]) / net.xstd[j]
+        let x = Array2::from_shape_fn((samples.inputs.len(), net.input_dim()), |(r, j)| {
+            (samples.inputs[r][j] - net.xmean[j]) / net.xstd[j]
         });
-        for (l, layer) in net.layers.iter().enumerate().take(depth) {
-            if let Some(m) = &mut out[l] {
-                m.add(&h, &g);
-            }
-            let pre = layer_batch(layer, &h, &g);
-            h = if l + 1 == net.layers.len() {
-                pre
-            } else {
-                pre.mapv(elu)
-            };
+        Sequential {
+            gate,
+            quantised: x.clone(),
+            float: x,
+            same: true,
+            layer: 0,
         }
     }
-    let n = samples.inputs.len().max(1) as f64;
-    out.into_iter().map(|m| m.map(|m| m.finish(n))).collect()
+
+    /// The moments of the current layer's input (`experts` experts).
+    pub fn moments(&self, experts: usize) -> LayerMoments {
+        let dim = self.float.ncols();
+        let mut m = LayerMoments::new(experts, dim);
+        if !self.same {
+            m.float = Some(FloatSide {
+                cross: vec![Array2::zeros((dim, dim)); experts],
+                first: vec![Array1::zeros(dim); experts],
+            });
+        }
+        let n = self.float.nrows();
+        for start in (0..n).step_by(BIG_CHUNK) {
+            let rows = ndarray::s![start..(start + BIG_CHUNK).min(n), ..];
+            let g = self.gate.slice(rows);
+            let xq = self.quantised.slice(rows);
+            m.add(xq, g);
+            if let Some(f) = &mut m.float {
+                let x = self.float.slice(rows);
+                for (k, gk) in g.columns().into_iter().enumerate() {
+                    if gk.iter().all(|&v| v == 0.0) {
+                        continue;
+                    }
+                    let gk = gk.insert_axis(Axis(1));
+                    let z = &x * &gk;
+                    let zq = &xq * &gk;
+                    f.first[k] += &z.sum_axis(Axis(0));
+                    f.cross[k] += &z.t().dot(&zq);
+                }
+            }
+        }
+        m.finish(n.max(1) as f64)
+    }
+
+    /// The current layer's input in the float chain and in the quantised
+    /// chain (samples x in; `None` while they are the same), and the gate
+    /// coefficients (samples x experts).
+    pub fn inputs(
+        &self,
+    ) -> (
+        ArrayView2<'_, f64>,
+        Option<ArrayView2<'_, f64>>,
+        ArrayView2<'_, f64>,
+    ) {
+        (
+            self.float.view(),
+            (!self.same).then(|| self.quantised.view()),
+            self.gate.view(),
+        )
+    }
+
+    /// Moves on to the next layer: `exact` is the float network's layer
+    /// `l`, `quantised` the same layer as the blob computes it.
+    pub fn advance(&mut self, net: &Net, exact: &NetLayer, quantised: &NetLayer) {
+        let last = self.layer + 1 == net.layers.len();
+        let act = |pre: Array2<f64>| if last { pre } else { pre.mapv(elu) };
+        self.float = act(layer_batch(exact, &self.float, &self.gate));
+        self.quantised = act(layer_batch(quantised, &self.quantised, &self.gate));
+        self.same = false;
+        self.layer += 1;
+    }
 }
+
+/// Samples per matrix product of [`Sequential`] (the products are large
+/// enough to run near peak at this size).
+const BIG_CHUNK: usize = 4096;
 
 /// The moments of every layer node `i` of graph `g` for which `wanted(i)`
 /// (other nodes get `None`), over `samples`: each node's concatenated
@@ -171,7 +256,7 @@ pub fn graph_moments(
                     }
                 }
             }
-            m.add(&h, &gates);
+            m.add(h.view(), gates.view());
         }
     }
     let n = samples.inputs.len().max(1) as f64;
@@ -258,7 +343,18 @@ mod tests {
         let net = net();
         let n = CHUNK + 37;
         let samples = normal_inputs(&[0.5; 6], &[2.0; 6], n, 1.0, 3);
-        let m = chain_moments(&net, &samples, |_| true);
+        // Advanced through the float layers themselves, the quantised
+        // chain is the float chain.
+        let mut seq = Sequential::new(&net, &samples);
+        let m: Vec<LayerMoments> = net
+            .layers
+            .iter()
+            .map(|layer| {
+                let m = seq.moments(layer.experts());
+                seq.advance(&net, layer, layer);
+                m
+            })
+            .collect();
         let close = |a: f64, b: f64| (a - b).abs() < 1e-9 * (1.0 + b.abs());
         for (l, (layer, got)) in net.layers.iter().zip(&m).enumerate() {
             let dim = layer.in_dim();
@@ -275,7 +371,10 @@ mod tests {
                     gm[k] += g / n as f64;
                 }
             }
-            let got = got.as_ref().unwrap();
+            if let Some(f) = &got.float {
+                assert_eq!(f.cross, got.second);
+                assert_eq!(f.first, got.first);
+            }
             for k in 0..4 {
                 assert!(got.second[k]
                     .iter()
@@ -288,7 +387,7 @@ mod tests {
                 assert!(close(got.gate_mean[k], gm[k]));
             }
         }
-        assert!(chain_moments(&net, &samples, |l| l == 1)[0].is_none());
+        assert!(m[0].float.is_none() && m[1].float.is_some());
         assert_eq!(m.len(), 4);
     }
 }
