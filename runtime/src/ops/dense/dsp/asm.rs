@@ -30,6 +30,44 @@ use core::arch::asm;
 /// The block loops of the target.
 pub(in crate::ops::dense) struct Asm;
 
+/// One word `$w` of four `I8Interleaved` weights against the input pairs
+/// `$x0` (its low pair: `SXTB16` into `$t`) and `$x1` (its high pair:
+/// `SXTB16 ROR 8`, in place), multiplied into `$acc`.
+macro_rules! i8_word {
+    ($acc:literal, $w:literal, $t:literal, $x0:literal, $x1:literal) => {
+        concat!(
+            "sxtb16 ",
+            $t,
+            ", ",
+            $w,
+            "\n",
+            "smlad ",
+            $acc,
+            ", ",
+            $t,
+            ", ",
+            $x0,
+            ", ",
+            $acc,
+            "\n",
+            "sxtb16 ",
+            $w,
+            ", ",
+            $w,
+            ", ror #8\n",
+            "smlad ",
+            $acc,
+            ", ",
+            $w,
+            ", ",
+            $x1,
+            ", ",
+            $acc,
+            "\n",
+        )
+    };
+}
+
 /// Eight inputs of one `I8Interleaved` row: two words of four weights,
 /// each split into its two pairs and multiplied into `$acc` (`$t` scratch).
 macro_rules! i8_step {
@@ -38,38 +76,8 @@ macro_rules! i8_step {
             "ldrd r12, lr, [",
             $ptr,
             "], #8\n",
-            "sxtb16 ",
-            $t,
-            ", r12\n",
-            "smlad ",
-            $acc,
-            ", ",
-            $t,
-            ", r2, ",
-            $acc,
-            "\n",
-            "sxtb16 r12, r12, ror #8\n",
-            "smlad ",
-            $acc,
-            ", r12, r3, ",
-            $acc,
-            "\n",
-            "sxtb16 ",
-            $t,
-            ", lr\n",
-            "smlad ",
-            $acc,
-            ", ",
-            $t,
-            ", r4, ",
-            $acc,
-            "\n",
-            "sxtb16 lr, lr, ror #8\n",
-            "smlad ",
-            $acc,
-            ", lr, r5, ",
-            $acc,
-            "\n",
+            i8_word!($acc, "r12", $t, "r2", "r3"),
+            i8_word!($acc, "lr", $t, "r4", "r5"),
         )
     };
 }
@@ -221,18 +229,7 @@ macro_rules! i8_group {
             "ldr r12, [",
             $ptr,
             "], #4\n",
-            "sxtb16 lr, r12\n",
-            "smlad ",
-            $acc,
-            ", lr, r2, ",
-            $acc,
-            "\n",
-            "sxtb16 r12, r12, ror #8\n",
-            "smlad ",
-            $acc,
-            ", r12, r3, ",
-            $acc,
-            "\n",
+            i8_word!($acc, "r12", "lr", "r2", "r3"),
         )
     };
 }
