@@ -83,14 +83,13 @@ pub struct OmgDir {
 pub fn load_dir(dir: &Path) -> Result<OmgDir> {
     let omg = read_omg(&dir.join("model.safetensors"), &dir.join("config.json"))?;
     let r = |name: &str| Clips::read(&dir.join(format!("{name}.npy")));
-    let refs = References {
+    let mut refs = References {
         inputs: r("ref_inputs")?,
         one_step: r("ref_one_step")?,
         rollout: r("ref_rollout_grounded")?,
         targets: r("ref_rollout_targets")?,
         float64: None,
     };
-    let mut refs = refs;
     let (one64, roll64) = (
         dir.join("ref64_one_step.npy"),
         dir.join("ref64_rollout_grounded.npy"),
