@@ -68,6 +68,8 @@ pub struct QLayer {
     pub requant: Vec<Requant>,
     /// CP arrays (CP layers only).
     pub cp: Option<QCp>,
+    /// RBF arrays (RBF layers only).
+    pub rbf: Option<crate::ops::rbf::QRbf>,
     /// Whether the layer is phase-gated when the model is a chain
     /// ([`Wiring::Chain`]); a graph's nodes name their gate source.
     pub gated: bool,
@@ -336,6 +338,29 @@ fn layer_sections(payload: &mut Payload, l: &QLayer, i: usize) -> Result<LayerDe
                 cores,
                 mid,
             };
+        }
+        LayerOp::Rbf { .. } => {
+            let rbf = l.rbf.as_ref().ok_or(EncodeError::Length {
+                layer: i,
+                what: "rbf arrays",
+            })?;
+            if rbf.scales.len() != experts * out || rbf.align.len() != inp {
+                return Err(EncodeError::Length {
+                    layer: i,
+                    what: "rbf scales",
+                });
+            }
+            desc.weight_section = payload.push(&weight_bytes(
+                &l.weights,
+                d.weights,
+                (experts * out * inp, inp),
+                i,
+                "centres",
+            )?)?;
+            let scales: Vec<u8> = rbf.scales.iter().flat_map(|r| r.to_bytes()).collect();
+            let scales = payload.push(&scales)?;
+            let align = payload.push(&rbf.align)?;
+            desc.op = LayerOp::Rbf { scales, align };
         }
     }
     desc.bias_section = payload.push(&bias_bytes(l, i)?)?;

@@ -70,12 +70,13 @@ pub fn describe(model: &Model<'_>) -> String {
     s
 }
 
-/// How a layer computes `W x`: "dense", "cp rank R" or "diagonal".
+/// How a layer computes `W x`: "dense", "cp rank R", "diagonal" or "rbf".
 pub fn op_name(op: &LayerOp) -> String {
     match op {
         LayerOp::Dense => "dense".into(),
         LayerOp::Cp { rank, .. } => format!("cp rank {rank}"),
         LayerOp::Diagonal => "diagonal".into(),
+        LayerOp::Rbf { .. } => "rbf".into(),
     }
 }
 

@@ -107,7 +107,7 @@ mod tests {
         "exporter/src/net/json.rs",
         "host-sim/src/npy.rs",
         "host-sim/src/compare.rs",
-        "runtime/src/blob/framing.rs",
-        "runtime/src/blob/records.rs",
+        "format/src/blob/framing.rs",
+        "format/src/blob/records.rs",
     ];
 }

@@ -733,10 +733,11 @@ fn omg_exports_the_committed_model_and_refuses_a_bad_config_without_writing() {
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
     assert_eq!(r["weight_format"], "int16");
     assert_eq!(r["overflow_proof"], true);
-    // RBF-CAT is refused in one line naming the config; nothing written.
+    // An unknown variant is refused in one line naming the config; nothing
+    // written.
     let mut cfg: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(c).unwrap()).unwrap();
-    cfg["variant"] = "RBF-CAT".into();
+    cfg["variant"] = "VAE".into();
     let bad = dir.path().join("config.json");
     std::fs::write(&bad, cfg.to_string()).unwrap();
     let out = dir.path().join("x.blob");
@@ -753,7 +754,7 @@ fn omg_exports_the_committed_model_and_refuses_a_bad_config_without_writing() {
     let e = stderr(&o);
     assert!(
         e.starts_with(&format!(
-            "error: {}: variant RBF-CAT needs an RBF op",
+            "error: {}: variant \"VAE\" (expected FE, FS or RBF-CAT)",
             bad.display()
         )),
         "{e}"

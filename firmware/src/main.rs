@@ -709,6 +709,10 @@ fn load_styles(rt: &mut Rt, styles: &'static [u8]) {
                 "style {=u8}: full adapter {=u16} -> {=u16}, {} weights",
                 id.0, desc.in_dim, desc.out_dim, desc.weights
             ),
+            LayerOp::Rbf { .. } => info!(
+                "style {=u8}: RBF adapter {=u16} -> {=u16}",
+                id.0, desc.in_dim, desc.out_dim
+            ),
         }
         let next = offset
             .checked_add(style.blob_len())

@@ -21,8 +21,8 @@
     )
 )]
 
-pub mod blob;
-mod error;
+pub use phasegate_format::blob;
+use phasegate_format::error;
 pub(crate) mod fixed;
 pub mod graph;
 pub mod mac_count;

@@ -116,7 +116,19 @@ fn layer_forward(layer: &NetLayer, x: &Array2<f64>, g: &Array2<f64>) -> (Array2<
             let gw = g.dot(&bias_matrix(&l.w));
             (&gw * x + g.dot(&bias_matrix(&l.b)), None)
         }
+        NetLayer::Rbf(_) => (rows_apply(layer, x, &g), None),
     }
+}
+
+/// A layer's pre-activation sample by sample (rows of `x`, gate
+/// coefficients in the rows of `g`): for ops with no matrix form.
+pub(crate) fn rows_apply(layer: &NetLayer, x: &Array2<f64>, g: &Array2<f64>) -> Array2<f64> {
+    let mut y = Array2::zeros((x.nrows(), layer.out_dim()));
+    for ((xr, gr), mut yr) in x.rows().into_iter().zip(g.rows()).zip(y.rows_mut()) {
+        let gate: Vec<(usize, f64)> = gr.iter().copied().enumerate().collect();
+        yr.assign(&layer.apply(&gate, &xr.to_owned()));
+    }
+    y
 }
 
 /// Gradients of a layer's parameters, in [`params_mut`] order, and `dX`.
@@ -181,6 +193,22 @@ fn layer_backward(
             (dx, grads)
         }
         (NetLayer::Cp(_), None) => (Array2::zeros(x.dim()), Vec::new()),
+        // d psi_j / dx = -2 sigma_j^2 (x - c_j) psi_j; its centres and
+        // widths are not distilled (no parameters, see `params_mut`).
+        (NetLayer::Rbf(l), _) => {
+            let mut dx = Array2::zeros(x.dim());
+            for (s, (xr, mut dxr)) in x.rows().into_iter().zip(dx.rows_mut()).enumerate() {
+                for (k, gk) in g.row(s).iter().enumerate() {
+                    for (j, c) in l.centres[k].rows().into_iter().enumerate() {
+                        let diff = &xr - &c;
+                        let s2 = l.sigma[k][j].powi(2);
+                        let psi = (-s2 * diff.dot(&diff)).exp();
+                        dxr.scaled_add(-2.0 * s2 * psi * gk * dy[[s, j]], &diff);
+                    }
+                }
+            }
+            (dx, Vec::new())
+        }
     }
 }
 
@@ -207,6 +235,7 @@ fn params_mut(layer: &mut NetLayer) -> Vec<ArrayViewMutD<'_, f64>> {
                 .chain(l.b.iter_mut().map(|b| b.view_mut().into_dyn()))
                 .collect()
         }
+        NetLayer::Rbf(_) => Vec::new(),
     }
 }
 

@@ -31,9 +31,11 @@
 //!
 //! FS (`encoder_columns` in the config): the encoder's first layer reads a
 //! few joints' columns; the importer scatters its weights into the columns
-//! `min..=max` of those (zeros elsewhere), one input slice. RBF-CAT needs
-//! an RBF op (`psi = exp(-(sigma |z - mu|)^2)`) the graph does not have and
-//! is refused.
+//! `min..=max` of those (zeros elsewhere), one input slice.
+//!
+//! RBF-CAT (spec §2.2): an `rbf` node after the encoder computes
+//! `psi = exp(-(sigma |z - mu|)^2)` for the C clusters (the graph's RBF op),
+//! and every expert layer reads `[psi, h]`, two slices concatenated.
 
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -46,6 +48,7 @@ use serde::Deserialize;
 use super::graph::{Graph, GraphNode, GraphOp};
 use super::{ExpertLayer, GatingMode, Net, NetLayer, Wiring};
 use crate::npz::NpArray;
+use crate::ops::RbfLayer;
 use phasegate::blob::{GateSource, Slice, Source};
 
 /// The `format` field of an OMG `config.json`.
@@ -73,6 +76,10 @@ pub struct OmgSizes {
     pub gate_hidden: usize,
     /// Experts k.
     pub experts: usize,
+    /// RBF clusters C (RBF-CAT: `psi`, C wide, in front of every expert
+    /// layer's input).
+    #[serde(default)]
+    pub clusters: usize,
 }
 
 /// The phase update `theta' = a * dtheta + (1 - a) * theta`.
@@ -300,6 +307,21 @@ fn experts(
     })
 }
 
+/// The RBF layer of RBF-CAT: `rbf.centres` (C, L) and `rbf.scales` (C,),
+/// `psi_j = exp(-(sigma_j |z - mu_j|)^2)`.
+fn rbf_layer(arrays: &BTreeMap<String, NpArray>, c: usize, latent: usize) -> Result<RbfLayer> {
+    let why = format!("RBF layer: {c} clusters over the latent {latent}");
+    let mu = get(arrays, "rbf.centres")?;
+    check_shape(mu, "rbf.centres", &[c, latent], &why)?;
+    let sigma = get(arrays, "rbf.scales")?;
+    check_shape(sigma, "rbf.scales", &[c], &why)?;
+    Ok(RbfLayer {
+        centres: vec![Array2::from_shape_vec((c, latent), mu.data.clone())?],
+        sigma: vec![Array1::from(sigma.data.clone())],
+        b: vec![Array1::zeros(c)],
+    })
+}
+
 fn input_slice(r: &Range<usize>) -> Result<Slice> {
     Ok(Slice {
         source: Source::Input,
@@ -365,14 +387,12 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     if cfg.format != FORMAT {
         bail!("config format {:?}, expected {FORMAT:?}", cfg.format);
     }
-    match cfg.variant.as_str() {
-        "FE" | "FS" => {}
-        "RBF-CAT" => bail!(
-            "variant RBF-CAT needs an RBF op (psi = exp(-(sigma |z - mu|)^2)) that the graph \
-             does not have; FE and FS import"
-        ),
-        v => bail!("variant {v:?} (expected FE or FS)"),
-    }
+    let cat = match cfg.variant.as_str() {
+        "FE" | "FS" => 0,
+        "RBF-CAT" if cfg.sizes.clusters > 0 => cfg.sizes.clusters,
+        "RBF-CAT" => bail!("variant RBF-CAT needs sizes.clusters > 0"),
+        v => bail!("variant {v:?} (expected FE, FS or RBF-CAT)"),
+    };
     let (j, k) = (cfg.joints, cfg.key);
     let s = &cfg.sizes;
     let phase = cfg.block("phase")?;
@@ -471,10 +491,13 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     )?;
     let h = s.expert_hidden;
     let moe = [
-        experts(arrays, 0, s.experts, s.latent + s.cost_hidden, h)?,
-        experts(arrays, 1, s.experts, h, h)?,
-        experts(arrays, 2, s.experts, h, moe_out)?,
+        experts(arrays, 0, s.experts, cat + s.latent + s.cost_hidden, h)?,
+        experts(arrays, 1, s.experts, cat + h, h)?,
+        experts(arrays, 2, s.experts, cat + h, moe_out)?,
     ];
+    let rbf = (cat > 0)
+        .then(|| rbf_layer(arrays, cat, s.latent))
+        .transpose()?;
     let dec = mlp(arrays, "dec", s.latent, s.ae_hidden, pose.len(), "decoder")?;
 
     // The output node: [dphase, phase, dec1, cost'] -> [phase', pose', cost'].
@@ -503,14 +526,14 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     let mut layers: Vec<NetLayer> = Vec::new();
     let mut nodes: Vec<GraphNode> = Vec::new();
     let mut add = |name: &str,
-                   layer: Option<ExpertLayer>,
+                   layer: Option<NetLayer>,
                    inputs: Vec<Slice>,
                    gate: GateSource,
                    elu: bool|
      -> usize {
         let op = match layer {
             Some(l) => {
-                layers.push(NetLayer::Dense(l));
+                layers.push(l);
                 GraphOp::Layer {
                     layer: layers.len() - 1,
                     elu,
@@ -530,21 +553,21 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     let [g0, g1, g2] = gate;
     let mut prev = add(
         "gate0",
-        Some(g0),
+        Some(NetLayer::Dense(g0)),
         vec![input_slice(&phase)?],
         GateSource::None,
         true,
     );
     prev = add(
         "gate1",
-        Some(g1),
+        Some(NetLayer::Dense(g1)),
         vec![whole(prev, s.gate_hidden)?],
         GateSource::None,
         true,
     );
     let logits = add(
         "gate2",
-        Some(g2),
+        Some(NetLayer::Dense(g2)),
         vec![whole(prev, s.gate_hidden)?],
         GateSource::None,
         false,
@@ -559,21 +582,21 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     let [e0, e1, e2] = enc;
     prev = add(
         "enc0",
-        Some(e0),
+        Some(NetLayer::Dense(e0)),
         vec![input_slice(&enc_in)?],
         GateSource::None,
         true,
     );
     prev = add(
         "enc1",
-        Some(e1),
+        Some(NetLayer::Dense(e1)),
         vec![whole(prev, s.ae_hidden)?],
         GateSource::None,
         true,
     );
     let zn = add(
         "enc2",
-        Some(e2),
+        Some(NetLayer::Dense(e2)),
         vec![whole(prev, s.ae_hidden)?],
         GateSource::None,
         false,
@@ -584,50 +607,83 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     } else {
         vec![input_slice(&cost)?, input_slice(&target)?]
     };
-    prev = add("cost0", Some(c0), cost_inputs, GateSource::None, true);
+    prev = add(
+        "cost0",
+        Some(NetLayer::Dense(c0)),
+        cost_inputs,
+        GateSource::None,
+        true,
+    );
     prev = add(
         "cost1",
-        Some(c1),
+        Some(NetLayer::Dense(c1)),
         vec![whole(prev, s.cost_hidden)?],
         GateSource::None,
         true,
     );
     let cn = add(
         "cost2",
-        Some(c2),
+        Some(NetLayer::Dense(c2)),
         vec![whole(prev, s.cost_hidden)?],
         GateSource::None,
         false,
     );
     let g = GateSource::Node(u8::try_from(alpha)?);
     let [m0, m1, m2] = moe;
+    // RBF-CAT: psi in front of every expert layer's input.
+    let psi = match rbf {
+        Some(l) => vec![whole(
+            add(
+                "rbf",
+                Some(NetLayer::Rbf(l)),
+                vec![whole(zn, s.latent)?],
+                GateSource::None,
+                false,
+            ),
+            cat,
+        )?],
+        None => Vec::new(),
+    };
+    let with_psi = |rest: Vec<Slice>| psi.iter().copied().chain(rest).collect::<Vec<_>>();
     prev = add(
         "moe0",
-        Some(m0),
-        vec![whole(zn, s.latent)?, whole(cn, s.cost_hidden)?],
+        Some(NetLayer::Dense(m0)),
+        with_psi(vec![whole(zn, s.latent)?, whole(cn, s.cost_hidden)?]),
         g,
         true,
     );
-    prev = add("moe1", Some(m1), vec![whole(prev, h)?], g, true);
-    let mo = add("moe2", Some(m2), vec![whole(prev, h)?], g, false);
+    prev = add(
+        "moe1",
+        Some(NetLayer::Dense(m1)),
+        with_psi(vec![whole(prev, h)?]),
+        g,
+        true,
+    );
+    let mo = add(
+        "moe2",
+        Some(NetLayer::Dense(m2)),
+        with_psi(vec![whole(prev, h)?]),
+        g,
+        false,
+    );
     let [d0, d1, _] = dec;
     prev = add(
         "dec0",
-        Some(d0),
+        Some(NetLayer::Dense(d0)),
         vec![node_slice(mo, &z)?],
         GateSource::None,
         true,
     );
     prev = add(
         "dec1",
-        Some(d1),
+        Some(NetLayer::Dense(d1)),
         vec![whole(prev, nh)?],
         GateSource::None,
         true,
     );
     let out = add(
         "out",
-        Some(out_layer),
+        Some(NetLayer::Dense(out_layer)),
         vec![
             node_slice(mo, &dphase)?,
             input_slice(&phase)?,
@@ -755,6 +811,7 @@ mod tests {
                 expert_hidden: he,
                 gate_hidden: hg,
                 experts: ke,
+                clusters: 0,
             },
             slices: [
                 ("phase", sl(0, np)),
@@ -828,8 +885,21 @@ mod tests {
         let m = logits.iter().copied().fold(f64::MIN, f64::max);
         let e: Vec<f64> = logits.iter().map(|l| (l - m).exp()).collect();
         let alpha: Vec<f64> = e.iter().map(|v| v / e.iter().sum::<f64>()).collect();
+        let psi: Vec<f64> = match (t.get("rbf.centres"), t.get("rbf.scales")) {
+            (Some(mu), Some(sigma)) if cfg.variant == "RBF-CAT" => {
+                let l = zc.len();
+                (0..sigma.data.len())
+                    .map(|j| {
+                        let d2: f64 = (0..l).map(|i| (zc[i] - mu.data[j * l + i]).powi(2)).sum();
+                        (-(sigma.data[j] * sigma.data[j]) * d2).exp()
+                    })
+                    .collect()
+            }
+            _ => Vec::new(),
+        };
         let mut hv = [zc, c].concat();
         for l in 0..3 {
+            hv = [psi.clone(), hv].concat();
             let w = &t[&format!("experts.w{l}")];
             let b = v(&format!("experts.b{l}"));
             let (k, i, o) = (
@@ -865,6 +935,67 @@ mod tests {
         y[r("cost")].copy_from_slice(&hv[os("cost")]);
         y[r("target")].copy_from_slice(&x[r("target")]);
         (0..y.len()).map(|i| y[i] * std[i] + mean[i]).collect()
+    }
+
+    /// [`tiny`] as RBF-CAT: `clusters` RBF units in front of every expert
+    /// layer's input.
+    fn tiny_rbf_cat(seed: u64, clusters: usize) -> (OmgConfig, BTreeMap<String, NpArray>) {
+        let (mut cfg, mut arrays) = tiny(seed);
+        cfg.variant = "RBF-CAT".into();
+        cfg.sizes.clusters = clusters;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed + 100);
+        for i in 0..3 {
+            let w = arrays.get_mut(&format!("experts.w{i}")).unwrap();
+            let (k, inp, out) = (
+                w.shape[0] as usize,
+                w.shape[1] as usize,
+                w.shape[2] as usize,
+            );
+            w.shape[1] += clusters as u64;
+            w.data = (0..k * (inp + clusters) * out)
+                .map(|_| rng.gen_range(-0.6..0.6))
+                .collect();
+        }
+        let l = cfg.sizes.latent;
+        arrays.insert(
+            "rbf.centres".into(),
+            NpArray {
+                shape: vec![clusters as u64, l as u64],
+                data: (0..clusters * l)
+                    .map(|_| rng.gen_range(-1.0..1.0))
+                    .collect(),
+            },
+        );
+        arrays.insert(
+            "rbf.scales".into(),
+            NpArray {
+                shape: vec![clusters as u64],
+                data: (0..clusters).map(|_| rng.gen_range(0.1..1.5)).collect(),
+            },
+        );
+        (cfg, arrays)
+    }
+
+    #[test]
+    fn rbf_cat_puts_psi_in_front_of_every_expert_layer() {
+        let (cfg, arrays) = tiny_rbf_cat(4, 3);
+        let m = net_from_omg(&cfg, &arrays).unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        for _ in 0..20 {
+            let x: Vec<f64> = (0..cfg.model_width)
+                .map(|_| rng.gen_range(-2.0..2.0))
+                .collect();
+            let want = reference(&cfg, &arrays, &x);
+            for (i, (g, w)) in m.step(&x).iter().zip(&want).enumerate() {
+                assert!((g - w).abs() < 1e-12, "{i}: {g} vs {w}");
+            }
+        }
+        let mut c = cfg.clone();
+        c.sizes.clusters = 0;
+        assert!(err(&c, &arrays).contains("needs sizes.clusters > 0"));
+        let mut a = arrays.clone();
+        a.get_mut("rbf.scales").unwrap().shape = vec![2];
+        assert!(err(&cfg, &a).contains("rbf.scales"), "{}", err(&cfg, &a));
     }
 
     #[test]
@@ -957,8 +1088,8 @@ mod tests {
             err(&c, &arrays).starts_with("out_slices dphase 0..2, z 2..5, cost 5..11 must have")
         );
         let mut c = cfg.clone();
-        c.variant = "RBF-CAT".into();
-        assert!(err(&c, &arrays).contains("needs an RBF op"));
+        c.variant = "VAE".into();
+        assert!(err(&c, &arrays).contains("expected FE, FS or RBF-CAT"));
         let mut c = cfg.clone();
         c.phase_update.a = 1.5;
         assert_eq!(

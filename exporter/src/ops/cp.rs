@@ -350,6 +350,7 @@ fn quantise_with(
         bias,
         requant,
         cp: Some(QCp { a: a.q, cores, mid }),
+        rbf: None,
         gated: spec.gated,
     };
     let rep = layer_report(

@@ -325,6 +325,7 @@ pub fn quantise_dequantised(
         bias,
         requant,
         cp: None,
+        rbf: None,
         gated: spec.gated,
     };
     let mut rep = layer_report(spec, &ql, "dense", None, sig, noise);

@@ -75,6 +75,7 @@ pub fn quantise(
         bias,
         requant,
         cp: None,
+        rbf: None,
         gated: spec.gated,
     };
     let rep = layer_report(spec, &ql, "diagonal", None, sig, noise);

@@ -10,12 +10,14 @@
 pub mod cp;
 pub mod dense;
 pub mod diag;
+pub mod rbf;
 
 use ndarray::{Array1, Array2};
 
 pub use cp::CpLayer;
 pub use dense::ExpertLayer;
 pub use diag::DiagLayer;
+pub use rbf::RbfLayer;
 
 use crate::encode::QLayer;
 use crate::quantise::{LayerSpec, QuantError, QuantLayerReport};
@@ -34,6 +36,8 @@ pub enum NetLayer {
     Cp(CpLayer),
     /// One diagonal per expert.
     Diagonal(DiagLayer),
+    /// Gaussian radial basis functions (not linear).
+    Rbf(RbfLayer),
 }
 
 impl NetLayer {
@@ -50,6 +54,7 @@ impl NetLayer {
                 (y, Some(u))
             }
             NetLayer::Diagonal(l) => (l.apply(gate, x), None),
+            NetLayer::Rbf(l) => (l.apply(gate, x), None),
         }
     }
 
@@ -64,6 +69,7 @@ impl NetLayer {
             NetLayer::Dense(l) => l.w.first().map_or(0, |w| w.ncols()),
             NetLayer::Cp(l) => l.b.nrows(),
             NetLayer::Diagonal(l) => l.w.first().map_or(0, |w| w.len()),
+            NetLayer::Rbf(l) => l.centres.first().map_or(0, |c| c.ncols()),
         }
     }
 
@@ -73,6 +79,7 @@ impl NetLayer {
             NetLayer::Dense(l) => l.w.first().map_or(0, |w| w.nrows()),
             NetLayer::Cp(l) => l.a.nrows(),
             NetLayer::Diagonal(l) => l.w.first().map_or(0, |w| w.len()),
+            NetLayer::Rbf(l) => l.centres.first().map_or(0, |c| c.nrows()),
         }
     }
 
@@ -82,6 +89,7 @@ impl NetLayer {
             NetLayer::Dense(l) => l.experts(),
             NetLayer::Cp(l) => l.experts(),
             NetLayer::Diagonal(l) => l.w.len(),
+            NetLayer::Rbf(l) => l.centres.len(),
         }
     }
 
@@ -91,6 +99,7 @@ impl NetLayer {
             NetLayer::Dense(l) => l.experts() * self.in_dim() * self.out_dim(),
             NetLayer::Cp(l) => l.rank() * (self.in_dim() + self.out_dim() + l.experts()),
             NetLayer::Diagonal(l) => l.w.len() * self.out_dim(),
+            NetLayer::Rbf(l) => l.centres.len() * self.out_dim() * (self.in_dim() + 1),
         }
     }
 
@@ -102,12 +111,13 @@ impl NetLayer {
         }
     }
 
-    /// "dense", "cp" or "diagonal".
+    /// "dense", "cp", "diagonal" or "rbf".
     pub fn form(&self) -> &'static str {
         match self {
             NetLayer::Dense(_) => "dense",
             NetLayer::Cp(_) => "cp",
             NetLayer::Diagonal(_) => "diagonal",
+            NetLayer::Rbf(_) => "rbf",
         }
     }
 
@@ -117,6 +127,7 @@ impl NetLayer {
             NetLayer::Dense(l) => dense::quantise(l, spec),
             NetLayer::Cp(l) => cp::quantise(l, spec),
             NetLayer::Diagonal(l) => diag::quantise(l, spec),
+            NetLayer::Rbf(l) => rbf::quantise(l, spec),
         }
     }
 
@@ -128,13 +139,15 @@ impl NetLayer {
             NetLayer::Dense(l) => l.w.clone(),
             NetLayer::Cp(l) => vec![l.b.t().to_owned()],
             NetLayer::Diagonal(l) => l.w.iter().map(Array2::from_diag).collect(),
+            // No weights multiply the inputs: every column counts the same.
+            NetLayer::Rbf(l) => vec![Array2::eye(self.in_dim()); l.centres.len()],
         }
     }
 
     /// Whether the rows of [`Self::input_rows`] are the op's outputs (so
     /// output weights apply to them).
     pub fn rows_are_outputs(&self) -> bool {
-        !matches!(self, NetLayer::Cp(_))
+        !matches!(self, NetLayer::Cp(_) | NetLayer::Rbf(_))
     }
 
     /// Fewest calibration samples this op needs.

@@ -212,12 +212,13 @@ pub struct StyleReport {
     pub range_used: f64,
 }
 
-/// "full", "diagonal" or "cp".
+/// "full", "diagonal", "cp" or "rbf".
 pub fn form_name(op: &NetLayer) -> &'static str {
     match op {
         NetLayer::Dense(_) => "full",
         NetLayer::Diagonal(_) => "diagonal",
         NetLayer::Cp(_) => "cp",
+        NetLayer::Rbf(_) => "rbf",
     }
 }
 
@@ -354,6 +355,7 @@ pub fn describe_style(bytes: &[u8]) -> Result<String> {
         phasegate::blob::LayerOp::Dense => "full".to_string(),
         phasegate::blob::LayerOp::Diagonal => "diagonal".to_string(),
         phasegate::blob::LayerOp::Cp { rank, .. } => format!("cp rank {rank}"),
+        phasegate::blob::LayerOp::Rbf { .. } => "rbf".to_string(),
     };
     let gating = match s.gating() {
         Gating::Single => "single".to_string(),

@@ -78,6 +78,7 @@ fn describe(model: &Model<'_>, i: u8) -> (String, String, String, u32, u64) {
                 LayerOp::Dense => ("dense", String::new()),
                 LayerOp::Cp { rank, .. } => ("cp", format!(" rank {rank}")),
                 LayerOp::Diagonal => ("diagonal", String::new()),
+                LayerOp::Rbf { .. } => ("rbf", String::new()),
             };
             let w = match d.weights {
                 WeightFormat::I8 => "i8",

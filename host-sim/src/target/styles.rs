@@ -73,6 +73,7 @@ impl StyleFile {
             LayerOp::Dense => ("full", None),
             LayerOp::Diagonal => ("diagonal", None),
             LayerOp::Cp { rank, .. } => ("cp", Some(rank)),
+            LayerOp::Rbf { .. } => ("rbf", None),
         };
         Ok(StyleFile {
             path: path.to_path_buf(),

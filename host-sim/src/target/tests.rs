@@ -411,6 +411,7 @@ fn synthetic_blob(input_dim: usize, width: usize, output_dim: usize, seed: u64) 
             o
         ],
         cp: None,
+        rbf: None,
         gated: false,
     };
     let layers = vec![layer(input_dim, width), layer(width, output_dim)];

@@ -7,6 +7,7 @@
 //! | [`dense`] | `Dense` | one `out x in` matrix per expert |
 //! | [`cp`] | `Cp` | `A diag(d_k) B^T x`, the matrix never formed |
 //! | [`diagonal`] | `Diagonal` | `w_k . x` (`in == out`) |
+//! | [`rbf`] | `Rbf` | `2^31 exp(-sigma_k^2 |x - c_k|^2)` per row (not linear) |
 //!
 //! An op's module holds all of it: binding its payload sections (structural
 //! checks), its value checks and overflow proof (re-derived at load from
@@ -29,6 +30,7 @@ pub(crate) mod common;
 pub mod cp;
 pub mod dense;
 pub mod diagonal;
+pub mod rbf;
 
 #[cfg(test)]
 mod contract;
@@ -129,6 +131,7 @@ macro_rules! closed_set {
 use cp::CpLayer;
 use dense::DenseLayer;
 use diagonal::DiagLayer;
+use rbf::RbfLayer;
 
 closed_set! {
     /// `LayerOp::Dense`: [`dense`].
@@ -137,6 +140,8 @@ closed_set! {
     Cp(CpLayer) = LayerOp::Cp { .. },
     /// `LayerOp::Diagonal`: [`diagonal`].
     Diagonal(DiagLayer) = LayerOp::Diagonal,
+    /// `LayerOp::Rbf`: [`rbf`].
+    Rbf(RbfLayer) = LayerOp::Rbf { .. },
 }
 
 impl<'a> Layer<'a> {

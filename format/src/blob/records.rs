@@ -69,8 +69,46 @@ impl Requant {
     }
 }
 
+/// Bytes of one RBF scale record.
+pub const RBF_SCALE_RECORD_LEN: usize = 8;
+
+/// How an RBF row turns its squared distance `D` into a position in the
+/// exp table (`docs/graph-format.md`, "The RBF op"):
+/// `pos = floor(D * multiplier / 2^shift)`, so `multiplier / 2^shift` is
+/// `sigma^2` times the table's positions per real unit (`2^22`) over the
+/// square of the distance's scale.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RbfScale {
+    /// Unsigned multiplier.
+    pub multiplier: u32,
+    /// Right shift after the multiplication, at most [`RbfScale::MAX_SHIFT`].
+    pub shift: u8,
+}
+
+impl RbfScale {
+    /// Largest shift the loader accepts (the product is 96 bits wide).
+    pub const MAX_SHIFT: u8 = 95;
+
+    /// Encodes the record: multiplier (u32 LE), shift, three zero bytes.
+    pub fn to_bytes(&self) -> [u8; RBF_SCALE_RECORD_LEN] {
+        let m = self.multiplier.to_le_bytes();
+        [m[0], m[1], m[2], m[3], self.shift, 0, 0, 0]
+    }
+
+    /// Decodes a record; `None` if a reserved byte is set or the shift is
+    /// above [`RbfScale::MAX_SHIFT`].
+    pub fn from_bytes(b: &[u8; RBF_SCALE_RECORD_LEN]) -> Option<RbfScale> {
+        let [m0, m1, m2, m3, shift, r0, r1, r2] = *b;
+        (r0 | r1 | r2 == 0 && shift <= Self::MAX_SHIFT).then_some(RbfScale {
+            multiplier: u32::from_le_bytes([m0, m1, m2, m3]),
+            shift,
+        })
+    }
+}
+
 /// Splits a stage record into its two f32 fields.
-pub(crate) fn stage_record(b: &[u8; STAGE_RECORD_LEN]) -> (f32, f32) {
+pub fn stage_record(b: &[u8; STAGE_RECORD_LEN]) -> (f32, f32) {
     let [a0, a1, a2, a3, b0, b1, b2, b3] = *b;
     (
         f32::from_le_bytes([a0, a1, a2, a3]),
@@ -79,7 +117,7 @@ pub(crate) fn stage_record(b: &[u8; STAGE_RECORD_LEN]) -> (f32, f32) {
 }
 
 /// Reads the `i`-th bias of a section of `width`-byte little-endian integers.
-pub(crate) fn bias_at(section: &[u8], width: usize, i: usize) -> Option<i64> {
+pub fn bias_at(section: &[u8], width: usize, i: usize) -> Option<i64> {
     let start = i.checked_mul(width)?;
     let b = section.get(start..start.checked_add(width)?)?;
     match *b {
@@ -106,6 +144,21 @@ mod tests {
         assert_eq!(Requant::from_bytes(&b), Some(r));
         b[7] = 1;
         assert_eq!(Requant::from_bytes(&b), None);
+    }
+
+    #[test]
+    fn rbf_scale_round_trips_and_rejects_reserved_bits_and_wide_shifts() {
+        let r = RbfScale {
+            multiplier: 0xDEAD_BEEF,
+            shift: 95,
+        };
+        let b = r.to_bytes();
+        assert_eq!(RbfScale::from_bytes(&b), Some(r));
+        for (at, v) in [(5, 1), (6, 1), (7, 0x80), (4, 96)] {
+            let mut c = b;
+            c[at] = v;
+            assert_eq!(RbfScale::from_bytes(&c), None, "byte {at} = {v}");
+        }
     }
 
     #[test]

@@ -12,7 +12,7 @@
 
 mod framing;
 mod header;
-pub(crate) mod records;
+pub mod records;
 
 pub use framing::{
     blob_len_from_prefix, crc32, Framed, FORMAT_VERSION, MAGIC, PAYLOAD_ALIGN, PREAMBLE_LEN,
@@ -23,5 +23,6 @@ pub use header::{
     MAX_NODE_INPUTS, MAX_STYLE_NAME,
 };
 pub use records::{
-    Requant, MAX_OUTPUT_OFFSET, MAX_OUTPUT_SCALE, REQUANT_RECORD_LEN, STAGE_RECORD_LEN,
+    RbfScale, Requant, MAX_OUTPUT_OFFSET, MAX_OUTPUT_SCALE, RBF_SCALE_RECORD_LEN,
+    REQUANT_RECORD_LEN, STAGE_RECORD_LEN,
 };

@@ -197,6 +197,19 @@ pub enum LayerOp {
     /// Diagonal weights (`in_dim == out_dim`): `y_i = w_ki x_i`;
     /// `weight_section` holds `experts x out_dim` weights.
     Diagonal,
+    /// Gaussian radial basis functions (OMG's RBF-CAT clustering layer):
+    /// `psi_kj = 2^31 exp(-sigma_kj^2 |x - c_kj|^2)` in place of `W_k x`.
+    /// `weight_section` holds the centres `c` (`experts x out_dim x
+    /// in_dim`, `weights` format, each element in its input's format).
+    Rbf {
+        /// `experts x out_dim` scale records, 8 bytes each
+        /// ([`crate::blob::RbfScale`]).
+        scales: Section,
+        /// `in_dim` bytes: input `i`'s squared differences are shifted left
+        /// by twice this (at most 15), which brings every input to the
+        /// finest input format.
+        align: Section,
+    },
 }
 
 /// A byte range of the payload (offsets are from the payload's first byte).

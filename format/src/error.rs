@@ -4,7 +4,7 @@ use core::fmt;
 
 /// Everything that can go wrong when loading a blob or running a frame.
 ///
-/// Loading validates the whole blob, so after [`crate::Model::from_bytes`]
+/// Loading validates the whole blob, so after `phasegate::Model::from_bytes`
 /// succeeds, the only errors a frame can return are about its arguments.
 #[derive(Clone, Copy, Debug, Eq, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -27,7 +27,7 @@ pub enum Error {
         supported: u16,
     },
     /// Bytes follow the payload: the slice is longer than the blob it holds
-    /// (use [`crate::Model::from_region`] for a flash region).
+    /// (use `phasegate::Model::from_region` for a flash region).
     TrailingBytes {
         /// Length of the blob the header declares.
         blob_len: u32,
