@@ -705,13 +705,13 @@ fn load_styles(rt: &mut Rt, styles: &'static [u8]) {
                 "style {=u8}: diagonal adapter {=u16} -> {=u16}, {} weights",
                 id.0, desc.in_dim, desc.out_dim, desc.weights
             ),
-            LayerOp::Dense => info!(
-                "style {=u8}: full adapter {=u16} -> {=u16}, {} weights",
-                id.0, desc.in_dim, desc.out_dim, desc.weights
-            ),
-            LayerOp::Rbf { .. } => info!(
-                "style {=u8}: RBF adapter {=u16} -> {=u16}",
-                id.0, desc.in_dim, desc.out_dim
+            LayerOp::Dense | LayerOp::Rbf { .. } => info!(
+                "style {=u8}: {=str} adapter {=u16} -> {=u16}, {} weights",
+                id.0,
+                if desc.op == LayerOp::Dense { "full" } else { "RBF" },
+                desc.in_dim,
+                desc.out_dim,
+                desc.weights
             ),
         }
         let next = offset

@@ -130,6 +130,7 @@ fn example_model() -> QModel {
                 frac: 0,
             }],
             cp: None,
+            rbf: None,
             gated: false,
         }],
         wiring: Wiring::Chain,
@@ -323,6 +324,17 @@ fn postcard_encodings_match_the_document() {
         },
     };
     assert_eq!(enc(&cp), [0x01, 0x03, 0x00, 0x04, 0x04, 0x08, 0x0c, 0x18]);
+    let rbf = LayerOp::Rbf {
+        scales: Section {
+            offset: 16,
+            len: 128,
+        },
+        align: Section {
+            offset: 144,
+            len: 32,
+        },
+    };
+    assert_eq!(enc(&rbf), [0x03, 0x10, 0x80, 0x01, 0x90, 0x01, 0x20]);
     // u8 is one raw byte, not a varint (200 would be c8 01 as a varint).
     let style = ModelKind::Style {
         base_crc: 1,
@@ -999,6 +1011,10 @@ mod spec {
                         mid: self.section()?,
                     },
                     2 => LayerOp::Diagonal,
+                    3 => LayerOp::Rbf {
+                        scales: self.section()?,
+                        align: self.section()?,
+                    },
                     _ => return None,
                 },
                 in_dim: self.u16()?,
@@ -1194,6 +1210,7 @@ fn layer(
             })
             .collect(),
         cp: None,
+        rbf: None,
         gated: experts > 1,
     }
 }
@@ -1348,6 +1365,7 @@ fn arb_op() -> impl Strategy<Value = LayerOp> {
             }
         ),
         Just(LayerOp::Diagonal),
+        (arb_section(), arb_section()).prop_map(|(scales, align)| LayerOp::Rbf { scales, align }),
     ]
 }
 

@@ -218,6 +218,7 @@ fn saturating_blob_pins_its_outputs() {
                 usize::from(out)
             ],
             cp: None,
+            rbf: None,
             gated: true,
         });
     }
@@ -292,6 +293,7 @@ fn i32_row_at_the_bound_does_not_wrap() {
                 2
             ],
             cp: None,
+            rbf: None,
             gated: false,
         }],
         wiring: Wiring::Chain,

@@ -80,6 +80,7 @@ pub enum Gating {
 
 impl Gating {
     /// How many experts each gated layer must have.
+    #[inline]
     pub fn experts(&self) -> u16 {
         match *self {
             Gating::Single => 1,
@@ -90,6 +91,7 @@ impl Gating {
     }
 
     /// How many experts are active (non-zero gate) in one frame at most.
+    #[inline]
     pub fn active(&self) -> usize {
         match *self {
             Gating::Single | Gating::Constant { .. } => 1,
@@ -118,6 +120,7 @@ pub enum WeightFormat {
 
 impl WeightFormat {
     /// Bytes per weight.
+    #[inline]
     pub fn bytes(&self) -> usize {
         match self {
             WeightFormat::I8 | WeightFormat::I8Interleaved => 1,
@@ -126,6 +129,7 @@ impl WeightFormat {
     }
 
     /// Bytes of a stored row of `len` weights (`I8Interleaved` pads to 4).
+    #[inline]
     pub fn row_bytes(&self, len: usize) -> usize {
         match self {
             WeightFormat::I8Interleaved => len.checked_next_multiple_of(4).unwrap_or(usize::MAX),
@@ -136,6 +140,7 @@ impl WeightFormat {
     /// Where in its row (counted in weights) weight `j` is stored. For
     /// `I8Interleaved` this swaps the middle two of every group of 4, so
     /// it is its own inverse: storage slot `s` holds weight `position(s)`.
+    #[inline]
     pub fn position(&self, j: usize) -> usize {
         match self {
             WeightFormat::I8Interleaved => (j & !3) | ((j & 1) << 1) | ((j >> 1) & 1),
@@ -157,6 +162,7 @@ pub enum AccWidth {
 
 impl AccWidth {
     /// Bytes per bias element.
+    #[inline]
     pub fn bytes(&self) -> usize {
         match self {
             AccWidth::I32 => 4,
@@ -224,6 +230,7 @@ pub struct Section {
 
 impl Section {
     /// One past the last byte, or `None` when that overflows.
+    #[inline]
     pub fn end(&self) -> Option<u32> {
         self.offset.checked_add(self.len)
     }
@@ -305,11 +312,13 @@ pub struct Span {
 impl Span {
     /// One past the last element.
     #[allow(clippy::arithmetic_side_effects)] // two u16 in a u32: cannot overflow
+    #[inline]
     pub fn end(&self) -> u32 {
         u32::from(self.offset) + u32::from(self.len)
     }
 
     /// Whether the two spans share an element (empty spans share none).
+    #[inline]
     pub fn overlaps(&self, other: &Span) -> bool {
         self.len > 0
             && other.len > 0
@@ -364,6 +373,7 @@ pub struct Node {
 
 impl Node {
     /// The layer descriptor, for a layer node.
+    #[inline]
     pub fn layer(&self) -> Option<&LayerDesc> {
         match &self.op {
             NodeOp::Layer(d) => Some(d),
@@ -372,6 +382,7 @@ impl Node {
     }
 
     /// Width of the node's input vector.
+    #[inline]
     pub fn in_dim(&self) -> u16 {
         match &self.op {
             NodeOp::Layer(d) => d.in_dim,
@@ -380,6 +391,7 @@ impl Node {
     }
 
     /// Width of the node's output vector (0 for a softmax gate).
+    #[inline]
     pub fn out_dim(&self) -> u16 {
         match &self.op {
             NodeOp::Layer(d) => d.out_dim,
@@ -461,6 +473,7 @@ pub trait Nodes {
 }
 
 impl Nodes for [Node] {
+    #[inline]
     fn count(&self) -> usize {
         self.len()
     }
@@ -471,6 +484,7 @@ impl Nodes for [Node] {
 }
 
 impl<const M: usize> Nodes for heapless::Vec<Node, M> {
+    #[inline]
     fn count(&self) -> usize {
         self.len()
     }
@@ -492,6 +506,7 @@ pub struct NodeTable<'a> {
 }
 
 impl Nodes for NodeTable<'_> {
+    #[inline]
     fn count(&self) -> usize {
         usize::from(self.count)
     }

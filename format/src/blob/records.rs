@@ -43,6 +43,7 @@ impl Requant {
     pub const MAX_SHIFT: u8 = 62;
 
     /// Encodes the record (the exporter's side).
+    #[inline]
     pub fn to_bytes(&self) -> [u8; REQUANT_RECORD_LEN] {
         let m = self.multiplier.to_le_bytes();
         [
@@ -58,6 +59,7 @@ impl Requant {
     }
 
     /// Decodes a record; `None` if its reserved byte is not zero.
+    #[inline]
     pub fn from_bytes(b: &[u8; REQUANT_RECORD_LEN]) -> Option<Requant> {
         let [m0, m1, m2, m3, pre_shift, post_shift, frac, reserved] = *b;
         (reserved == 0).then_some(Requant {
@@ -91,6 +93,7 @@ impl RbfScale {
     pub const MAX_SHIFT: u8 = 95;
 
     /// Encodes the record: multiplier (u32 LE), shift, three zero bytes.
+    #[inline]
     pub fn to_bytes(&self) -> [u8; RBF_SCALE_RECORD_LEN] {
         let m = self.multiplier.to_le_bytes();
         [m[0], m[1], m[2], m[3], self.shift, 0, 0, 0]
@@ -98,6 +101,7 @@ impl RbfScale {
 
     /// Decodes a record; `None` if a reserved byte is set or the shift is
     /// above [`RbfScale::MAX_SHIFT`].
+    #[inline]
     pub fn from_bytes(b: &[u8; RBF_SCALE_RECORD_LEN]) -> Option<RbfScale> {
         let [m0, m1, m2, m3, shift, r0, r1, r2] = *b;
         (r0 | r1 | r2 == 0 && shift <= Self::MAX_SHIFT).then_some(RbfScale {
@@ -108,6 +112,7 @@ impl RbfScale {
 }
 
 /// Splits a stage record into its two f32 fields.
+#[inline]
 pub fn stage_record(b: &[u8; STAGE_RECORD_LEN]) -> (f32, f32) {
     let [a0, a1, a2, a3, b0, b1, b2, b3] = *b;
     (
@@ -117,6 +122,7 @@ pub fn stage_record(b: &[u8; STAGE_RECORD_LEN]) -> (f32, f32) {
 }
 
 /// Reads the `i`-th bias of a section of `width`-byte little-endian integers.
+#[inline]
 pub fn bias_at(section: &[u8], width: usize, i: usize) -> Option<i64> {
     let start = i.checked_mul(width)?;
     let b = section.get(start..start.checked_add(width)?)?;

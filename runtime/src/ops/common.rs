@@ -97,6 +97,18 @@ pub(crate) fn finish_row(
     }
 }
 
+/// [`finish_row`] as one out-of-line function, for ops whose rows are few
+/// and costly anyway (diagonal, RBF): one copy of the requantisation and
+/// the ELU instead of one inlined into each of their loops.
+#[inline(never)]
+pub(crate) fn finish_row_outlined(
+    total: i64,
+    record: &[u8; REQUANT_RECORD_LEN],
+    activation: Activation,
+) -> i16 {
+    finish_row(total, record, activation)
+}
+
 /// Load-time check of one output-row record: reserved byte zero, shifts
 /// at most [`Requant::MAX_SHIFT`], an ELU row's format at most Q15
 /// (`UnsupportedParameter { layer }` otherwise).

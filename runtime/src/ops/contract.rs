@@ -813,4 +813,5 @@ macro_rules! op_contract {
 op_contract!(dense, crate::ops::dense::case::Dense, 3);
 op_contract!(cp, crate::ops::cp::case::Cp, 3);
 op_contract!(diagonal, crate::ops::diagonal::case::Diagonal, 2);
-op_contract!(rbf, crate::ops::rbf::case::Rbf, 2);
+// RBF centres are int16 only.
+op_contract!(rbf, crate::ops::rbf::case::Rbf, 1);

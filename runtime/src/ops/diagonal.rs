@@ -4,7 +4,7 @@
 //! an accumulator proof; the blend is done in i64 like the dense kernel's.
 
 use super::common::{
-    check_dims, check_requant, finish_row, i16_at, too_short, too_small, Sections,
+    check_dims, check_requant, finish_row_outlined, i16_at, too_short, too_small, Sections,
 };
 use super::GatedOp;
 use crate::blob::records::bias_at;
@@ -55,7 +55,7 @@ impl<'a> DiagLayer<'a> {
                 total = total.saturating_add(v.saturating_mul(i64::from(g)));
                 crate::mac_count::add(1);
             }
-            *yi = finish_row(total, rec, self.desc.activation);
+            *yi = finish_row_outlined(total, rec, self.desc.activation);
         }
         Ok(())
     }

@@ -12,7 +12,7 @@
 //! root and no division: a few hundred instructions per cluster.
 
 use super::common::{
-    check_dims, check_requant, finish_row, i16_at, too_short, too_small, Sections,
+    check_dims, check_requant, finish_row_outlined, too_short, too_small, Sections,
 };
 use super::GatedOp;
 use crate::blob::records::bias_at;
@@ -35,7 +35,7 @@ const ONE_Q31: i64 = 1 << 31;
 pub struct RbfLayer<'a> {
     /// The header's description (its `op` is `LayerOp::Rbf`).
     pub desc: LayerDesc,
-    /// `experts x out x in` centres.
+    /// `experts x out x in` centres, i16.
     pub centres: &'a [u8],
     /// `experts x out` scale records.
     pub scales: &'a [u8],
@@ -58,27 +58,25 @@ fn max_square(c: i64) -> u64 {
 }
 
 impl<'a> RbfLayer<'a> {
-    /// Centre `at` (flat index, storage order).
-    fn centre(&self, at: usize) -> i64 {
-        match self.desc.weights {
-            WeightFormat::I8 | WeightFormat::I8Interleaved => {
-                self.centres.get(at).map_or(0, |&b| i64::from(b as i8))
-            }
-            WeightFormat::I16 => i16_at(self.centres, at).map_or(0, i64::from),
-        }
-    }
-
-    /// The centres of stored row `row` (expert-major), with the alignment
-    /// of their inputs.
+    /// The centres of stored row `row` (expert-major), little-endian i16
+    /// pairs, with the alignment of their inputs.
     fn row(&self, row: usize) -> impl Iterator<Item = (i64, u32)> + '_ {
         let n = usize::from(self.desc.in_dim);
-        let first = row.saturating_mul(n);
-        self.align.iter().enumerate().map(move |(i, &a)| {
-            (
-                self.centre(first.saturating_add(i)),
-                u32::from(a.min(MAX_ALIGN)),
-            )
-        })
+        let bytes = row
+            .checked_mul(2 * n)
+            .and_then(|from| self.centres.get(from..)?.get(..2 * n))
+            .unwrap_or(&[]);
+        bytes
+            .as_chunks::<2>()
+            .0
+            .iter()
+            .zip(self.align)
+            .map(|(c, &a)| {
+                (
+                    i64::from(i16::from_le_bytes(*c)),
+                    u32::from(a.min(MAX_ALIGN)),
+                )
+            })
     }
 
     /// `psi` of stored row `row` at `x`, Q31.
@@ -110,13 +108,14 @@ impl<'a> GatedOp<'a> for RbfLayer<'a> {
         active * u64::from(desc.out_dim) * u64::from(desc.in_dim)
     }
 
-    /// `weight_section`: the centres (`I8` or `I16`); then the scale
-    /// records, the alignment shifts, biases and output records.
+    /// `weight_section`: the centres (`I16` only: a centre lives in its
+    /// input's format, which int8 could not span); then the scale records,
+    /// the alignment shifts, biases and output records.
     fn bind(payload: &'a [u8], desc: LayerDesc, index: u8) -> Result<Self> {
         let LayerOp::Rbf { scales, align } = desc.op else {
             return Err(Error::UnsupportedParameter { layer: index });
         };
-        if desc.weights == WeightFormat::I8Interleaved {
+        if desc.weights != WeightFormat::I16 {
             return Err(Error::UnsupportedParameter { layer: index });
         }
         check_dims(&desc, index)?;
@@ -152,19 +151,23 @@ impl<'a> GatedOp<'a> for RbfLayer<'a> {
         if self.align.iter().any(|&a| a > MAX_ALIGN) {
             return Err(unsupported);
         }
-        let records = self.scales.as_chunks::<RBF_SCALE_RECORD_LEN>().0;
-        if records.iter().any(|r| RbfScale::from_bytes(r).is_none()) {
-            return Err(unsupported);
-        }
         let out = usize::from(self.desc.out_dim).max(1);
-        for r in 0..records.len() {
-            // `max_square < 2^32` and `a <= 15`: each term below 2^62, the
-            // sum of at most 2^16 of them below 2^78.
-            let bound: u128 = self
-                .row(r)
-                .map(|(c, a)| u128::from(max_square(c)) << (2 * a))
-                .fold(0, u128::saturating_add);
-            if bound > u128::from(u64::MAX) {
+        for (r, record) in self
+            .scales
+            .as_chunks::<RBF_SCALE_RECORD_LEN>()
+            .0
+            .iter()
+            .enumerate()
+        {
+            if RbfScale::from_bytes(record).is_none() {
+                return Err(unsupported);
+            }
+            // `max_square < 2^32` and `a <= 15`: each term is below 2^62;
+            // the sum must not pass u64.
+            let bound = self.row(r).try_fold(0u64, |sum, (c, a)| {
+                sum.checked_add(max_square(c) << (2 * a))
+            });
+            if bound.is_none() {
                 let row = (r % out) as u16;
                 return Err(Error::AccumulatorOverflow { layer: li, row });
             }
@@ -204,7 +207,7 @@ impl<'a> GatedOp<'a> for RbfLayer<'a> {
                 total = total.saturating_add(v.saturating_mul(i64::from(g)));
                 crate::mac_count::add(n);
             }
-            *yj = finish_row(total, rec, self.desc.activation);
+            *yj = finish_row_outlined(total, rec, self.desc.activation);
         }
         Ok(())
     }
@@ -214,7 +217,7 @@ impl<'a> GatedOp<'a> for RbfLayer<'a> {
 #[cfg(test)]
 pub(crate) mod case {
     use super::{RbfLayer, MAX_ALIGN};
-    use crate::blob::{AccWidth, Gating, LayerDesc, LayerOp, RbfScale};
+    use crate::blob::{AccWidth, Gating, LayerDesc, LayerOp, RbfScale, WeightFormat};
     use crate::error::Error;
     use crate::fixed::elu::expm1_neg_q31;
     use crate::ops::contract::{
@@ -299,7 +302,8 @@ pub(crate) mod case {
     impl OpCase for Rbf {
         type Op<'a> = RbfLayer<'a>;
 
-        fn random(rng: &mut Rng, shape: Shape, _gating: Gating) -> Self {
+        fn random(rng: &mut Rng, mut shape: Shape, _gating: Gating) -> Self {
+            shape.weights = WeightFormat::I16;
             let rows = shape.experts * shape.out_dim;
             let c = shape.weights(rng, rows * shape.in_dim);
             let align = (0..shape.in_dim)
@@ -423,6 +427,11 @@ pub(crate) mod case {
             twins.push((t, unsupported));
             let mut t = worst.clone();
             t.scales[0].1 = RbfScale::MAX_SHIFT + 1;
+            twins.push((t, unsupported));
+            // int8 centres could not span their inputs' formats.
+            let mut t = worst.clone();
+            t.rows.shape.weights = WeightFormat::I8;
+            t.c.iter_mut().for_each(|c| *c = (*c).clamp(-128, 127));
             twins.push((t, unsupported));
             twins
         }

@@ -129,6 +129,7 @@ pub fn hand_model() -> QModel {
                 })
                 .collect(),
             cp: None,
+            rbf: None,
             gated: d.experts > 1,
         }
     };
