@@ -53,10 +53,10 @@ use defmt::{error, info, Display2Format};
 use defmt_semihosting as _;
 use phasegate::blob::{LayerOp, Nodes as _, MAGIC};
 use phasegate::{Model, Phase, Runtime, Style};
-#[cfg(feature = "controller")]
-use phasegate_controller::{layout, Deadline, Locomotion, TickSource};
 #[cfg(any(feature = "controller", feature = "reach"))]
 use phasegate_controller::Network;
+#[cfg(feature = "controller")]
+use phasegate_controller::{layout, Deadline, Locomotion, TickSource};
 use semihosting::fs::File;
 use semihosting::io::Write as _;
 

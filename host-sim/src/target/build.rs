@@ -114,6 +114,16 @@ pub fn build_controller_firmware() -> Result<PathBuf> {
     )
 }
 
+/// Builds the reach firmware (`--features reach`, into
+/// `firmware/target/reach`) if needed and returns its ELF path.
+pub fn build_reach_firmware() -> Result<PathBuf> {
+    build_checked(
+        BIN,
+        &["reach"],
+        Some(&firmware_dir().join("target").join("reach")),
+    )
+}
+
 fn build_checked(bin: &str, features: &[&str], target_dir: Option<&Path>) -> Result<PathBuf> {
     let out = cargo_build_bin(bin, features, target_dir)?;
     if !out.success {
