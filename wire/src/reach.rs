@@ -83,7 +83,11 @@ pub fn encode_setup(
         put_range(buf, 56 + 16 * i, o);
         put_range(buf, 64 + 16 * i, f);
     }
-    for (d, v) in buf.get_mut(SETUP_HEAD_LEN..)?.chunks_exact_mut(4).zip(first) {
+    for (d, v) in buf
+        .get_mut(SETUP_HEAD_LEN..)?
+        .chunks_exact_mut(4)
+        .zip(first)
+    {
         d.copy_from_slice(&v.to_bits().to_le_bytes());
     }
     Some(())
