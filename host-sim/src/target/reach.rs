@@ -595,3 +595,54 @@ pub fn run(args: &ReachArgs<'_>) -> Result<ReachReport> {
     }
     Ok(report)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::target::{qemu_available, repo_root};
+
+    /// 30 steps of `tiny_fe_r1` int8 (the golden blob) on the reach
+    /// firmware under QEMU, with the left hand's target moved at step 10
+    /// and a NaN target for the right hand at step 20 (refused, recorded,
+    /// the run goes on): every frame and target outcome equals the host's,
+    /// and the firmware stays within its `.text` and RAM budgets.
+    #[test]
+    fn reach_on_qemu_is_bit_exact_with_a_moved_and_a_refused_target() {
+        if !qemu_available() {
+            eprintln!(
+                "SKIPPED reach_on_qemu_is_bit_exact_with_a_moved_and_a_refused_target: qemu-system-arm not found (apt-get install qemu-system-arm)"
+            );
+            return;
+        }
+        let root = repo_root();
+        let dir = root.join("models/omg/tiny_fe_r1");
+        let blob = root.join("tests/golden/omg-tiny-fe-r1/model.blob");
+        let mut plan =
+            plan_from_script(&dir, "reach-front", None, 30, CostMode::Grounded).unwrap();
+        assert!(plan.targets.iter().flatten().all(Option::is_none));
+        plan.targets[10][0] = Some(Target {
+            position: [0.35, 1.1, 0.25],
+            forward: [0.0, 0.0, 1.0],
+            up: [0.0, 1.0, 0.0],
+        });
+        plan.targets[20][1] = Some(Target {
+            position: [-0.3, f32::NAN, 0.2],
+            forward: [0.0, 0.0, 1.0],
+            up: [0.0, 1.0, 0.0],
+        });
+        let r = execute_plan(&blob, "reach-front + edits", &plan).unwrap();
+        assert!(r.bit_exact(), "{}", r.render());
+        assert_eq!(r.targets_set, 1);
+        assert_eq!(r.refused, vec![(20, 1, 1)]);
+        assert_eq!(r.budget_verdict(), "within budget", "{}", r.render());
+        // The moved target reaches the frame's target block the next step.
+        let t = plan.layout.target.start;
+        let out = host_frames(
+            Model::from_bytes(&std::fs::read(&blob).unwrap()).unwrap(),
+            &plan,
+        )
+        .unwrap();
+        assert_eq!(out.0[10][t..t + 3], [0.35, 1.1, 0.25]);
+        assert_eq!(out.0[9][t..t + 3], out.0[0][t..t + 3]);
+    }
+}
