@@ -486,6 +486,12 @@ pub fn execute_plan(model_path: &Path, script: &str, plan: &ReachPlan) -> Result
     let frames = plan.targets.len();
     ensure!(frames > 0, "no frames to run");
     let width = plan.first.len();
+    ensure!(
+        model.input_dim() == width,
+        "{} has {} inputs, the model directory's frames are {width} wide: a blob of another model?",
+        model_path.display(),
+        model.input_dim()
+    );
     let image = reach_image(plan, model.output_dim())?;
     let input_crc = wire::InputHeader::parse(&image)
         .map(|(h, _)| h.crc)
