@@ -128,13 +128,13 @@ pub fn reach_image(plan: &ReachPlan, outputs: usize) -> Result<Vec<u8>> {
     Ok(image)
 }
 
+/// Each step's target outcomes, one per hand.
+pub type Outcomes = Vec<[TargetOutcome; HANDS]>;
+
 /// The host reference: `Reach<f32, DEVICE_WIDTH>` over the runtime, the
 /// firmware's loop step for step. Returns every frame after its step and
 /// each step's target outcomes.
-pub fn host_frames(
-    model: Model<'_>,
-    plan: &ReachPlan,
-) -> Result<(Vec<Vec<f32>>, Vec<[TargetOutcome; HANDS]>)> {
+pub fn host_frames(model: Model<'_>, plan: &ReachPlan) -> Result<(Vec<Vec<f32>>, Outcomes)> {
     let mut rt = Box::new(
         Runtime::<'_, HOST_W, HOST_S, HOST_N>::new(model)
             .context("the host runtime refuses the model")?,
@@ -623,8 +623,7 @@ mod tests {
         let root = repo_root();
         let dir = root.join("models/omg/tiny_fe_r1");
         let blob = root.join("tests/golden/omg-tiny-fe-r1/model.blob");
-        let mut plan =
-            plan_from_script(&dir, "reach-front", None, 30, CostMode::Grounded).unwrap();
+        let mut plan = plan_from_script(&dir, "reach-front", None, 30, CostMode::Grounded).unwrap();
         assert!(plan.targets.iter().flatten().all(Option::is_none));
         plan.targets[10][0] = Some(Target {
             position: [0.35, 1.1, 0.25],
