@@ -36,6 +36,8 @@ mod region;
 mod slot;
 mod staging;
 use region::{model_region, region};
+#[cfg(feature = "reach")]
+mod reach;
 #[cfg(feature = "controller")]
 mod status_pin;
 // The wire format, shared with host-sim.
@@ -51,8 +53,10 @@ use defmt::{error, info, Display2Format};
 use defmt_semihosting as _;
 use phasegate::blob::{LayerOp, Nodes as _, MAGIC};
 use phasegate::{Model, Phase, Runtime, Style};
+#[cfg(any(feature = "controller", feature = "reach"))]
+use phasegate_controller::Network;
 #[cfg(feature = "controller")]
-use phasegate_controller::{layout, Deadline, Locomotion, Network, TickSource};
+use phasegate_controller::{layout, Deadline, Locomotion, TickSource};
 use semihosting::fs::File;
 use semihosting::io::Write as _;
 
@@ -216,7 +220,9 @@ fn main() -> ! {
             exit(wire::exit::BAD_INPUT);
         }
     };
-    if input.mode == wire::Mode::Controller {
+    // Controller and reach modes share one entry, so the inference build
+    // (which refuses both) keeps one refusal.
+    if input.mode != wire::Mode::Network {
         let after = hostio.get(input.image_len() as usize..).unwrap_or(&[]);
         run_controller(rt, &input, records, after, calib_ticks);
     }
@@ -348,10 +354,10 @@ fn main() -> ! {
 /// profile file: not in the controller build, whose loop runs the executor
 /// through `Runtime::run` already, so probing here too would link a second
 /// copy of it (about 3 KB of `.text`).
-const PROFILE: bool = cfg!(not(feature = "controller"));
+const PROFILE: bool = cfg!(not(any(feature = "controller", feature = "reach")));
 
 /// One frame's integer inference, its stages timed by `timer`.
-#[cfg(not(feature = "controller"))]
+#[cfg(not(any(feature = "controller", feature = "reach")))]
 #[inline(always)]
 fn infer<'r>(
     rt: &'r mut Rt,
@@ -363,7 +369,7 @@ fn infer<'r>(
 }
 
 /// One frame's integer inference, untimed ([`PROFILE`]).
-#[cfg(feature = "controller")]
+#[cfg(any(feature = "controller", feature = "reach"))]
 #[inline(always)]
 fn infer<'r>(
     rt: &'r mut Rt,
@@ -426,8 +432,9 @@ fn create_output(header: &wire::OutputHeader) -> File {
     file
 }
 
-/// Controller mode without the `controller` feature: refused.
-#[cfg(not(feature = "controller"))]
+/// Controller and reach modes without the `controller` or `reach`
+/// feature: refused.
+#[cfg(not(any(feature = "controller", feature = "reach")))]
 #[inline(never)]
 fn run_controller(_: &mut Rt, _: &wire::InputHeader, _: &[u8], _: &[u8], _: u32) -> ! {
     error!("controller mode is not built into this firmware (cargo build --release --features controller)");
@@ -440,13 +447,13 @@ fn run_controller(_: &mut Rt, _: &wire::InputHeader, _: &[u8], _: &[u8], _: u32)
 static LOCOMOTION: Slot<Locomotion<f32>> = Slot::empty();
 
 /// The styled runtime as the loop's network, timing each inference.
-#[cfg(feature = "controller")]
+#[cfg(any(feature = "controller", feature = "reach"))]
 struct Timed<'r> {
     rt: &'r mut Rt,
     ticks: u32,
 }
 
-#[cfg(feature = "controller")]
+#[cfg(any(feature = "controller", feature = "reach"))]
 impl Network<f32> for Timed<'_> {
     fn input_dim(&self) -> usize {
         self.rt.model().input_dim()
@@ -499,13 +506,41 @@ impl TickSource for SysTicks {
     }
 }
 
-/// Controller mode: per record, `set_mix` then `Locomotion::frame` with
+/// Controller and reach modes in a firmware built with the `controller`
+/// feature (the locomotion loop, mode 1), the `reach` feature (the
+/// reaching loop, mode 2: [`reach::run_reach`]) or both; a mode not built
+/// in is refused.
+#[cfg(any(feature = "controller", feature = "reach"))]
+#[inline(never)]
+fn run_controller(
+    rt: &mut Rt,
+    input: &wire::InputHeader,
+    records: &[u8],
+    after: &[u8],
+    calib_ticks: u32,
+) -> ! {
+    #[cfg(not(feature = "controller"))]
+    let _ = after;
+    match input.mode {
+        #[cfg(feature = "reach")]
+        wire::Mode::Reach => reach::run_reach(rt, input, records, calib_ticks),
+        #[cfg(feature = "controller")]
+        wire::Mode::Controller => run_locomotion(rt, input, records, after, calib_ticks),
+        _ => {
+            error!("this mode is not built into this firmware (features controller: locomotion, reach: reaching)");
+            exit(wire::exit::NO_CONTROLLER);
+        }
+    }
+}
+
+/// Controller mode: per record, `set_mix`
+/// then `Locomotion::frame` with
 /// the record's command, timed by the deadline read from the block after
 /// the records (`after`; none: frames are timed, nothing overruns); writes
 /// each pose, its timings and its deadline status; never returns.
 #[cfg(feature = "controller")]
 #[inline(never)]
-fn run_controller(
+fn run_locomotion(
     rt: &mut Rt,
     input: &wire::InputHeader,
     records: &[u8],

@@ -193,6 +193,24 @@ enum Command {
             requires = "budget_instructions"
         )]
         overrun_policy: PolicyArg,
+        /// Run the OMG reaching loop on the firmware (its `reach` build):
+        /// a target script as `host-sim rollout --omg --script` takes it
+        /// (reach-front, alternate, a JSON file, ref:N, clip:N) gives the
+        /// hands' targets; every frame is compared bit for bit with the
+        /// host's `Reach<f32>`. Needs --omg. Default 60 steps.
+        #[arg(long, value_name = "SCRIPT", requires = "omg", conflicts_with_all = ["controller", "inputs", "cycles"])]
+        reach: Option<String>,
+        /// With --reach: the model's directory (config.json: the layout;
+        /// its first reference frame: the start frame).
+        #[arg(long, value_name = "DIR", requires = "reach")]
+        omg: Option<PathBuf>,
+        /// With --reach: feed the predicted costs back instead of
+        /// recomputing them from the pose (grounded, the default).
+        #[arg(long, requires = "reach")]
+        faithful: bool,
+        /// With --reach clip:N: the data tools/omg/generate wrote.
+        #[arg(long, value_name = "DIR", requires = "reach")]
+        data: Option<PathBuf>,
     },
     /// Code size, static RAM and stack of the inference core, the firmware
     /// and the controller firmware, each against its .text budget.
@@ -392,7 +410,26 @@ fn run(cli: Cli) -> Result<()> {
             controller,
             budget_instructions,
             overrun_policy,
+            reach,
+            omg,
+            faithful,
+            data,
         } => {
+            if let (Some(script), Some(dir)) = (reach, omg) {
+                host_sim::target::reach::run(&host_sim::target::reach::ReachArgs {
+                    model: &model,
+                    dir: &dir,
+                    script: &script,
+                    data,
+                    frames,
+                    mode: if faithful {
+                        phasegate_controller::CostMode::Faithful
+                    } else {
+                        phasegate_controller::CostMode::Grounded
+                    },
+                })?;
+                return Ok(());
+            }
             if let Some(script) = controller {
                 let deadline = match budget_instructions {
                     None => phasegate_controller::DeadlineConfig::NONE,

@@ -21,7 +21,7 @@
 //! | 16 | 4 | output dim O (what the host expects the model to produce) |
 //! | 20 | 4 | record length: 12 + 4 I (network mode), 40 (controller mode) |
 //! | 24 | 4 | CRC-32 (ISO-HDLC) of the N records |
-//! | 28 | 4 | mode: 0 = network, 1 = controller (any other value: [`WireError::UnknownMode`]) |
+//! | 28 | 4 | mode: 0 = network, 1 = controller, 2 = reach (any other value: [`WireError::UnknownMode`]) |
 //!
 //! **Network mode** (0): N records of the frame's mix (8 bytes, below),
 //! phase (f32, radians), I inputs (f32, model units).
@@ -44,6 +44,17 @@
 //! The f32 are raw bits: the firmware rebuilds the exact `Command` (NaN
 //! and infinities included, which `Locomotion::step` refuses with
 //! `BadCommand`: exit code [`exit::FRAME_ERROR`]).
+//!
+//! **Reach mode** (2): the firmware runs the OMG reaching loop
+//! (`Reach<f32, W>` over the runtime). I is the frame width n (the
+//! network's inputs), O the network's outputs. The records start with a
+//! setup (layout, cost mode, first frame; [`reach::encode_setup`],
+//! [`reach::setup_len`]`(I)` bytes, counted in the CRC), then N target
+//! records of [`reach::TARGET_RECORD_LEN`] bytes (a flags word, both
+//! hands' position, forward, up as f32). The output records are
+//! [`reach::frame_record_len`]`(I)` bytes: network ticks, frame ticks,
+//! frame index, the hands' target outcomes, then the whole frame `X`
+//! after the step. See the [`reach`] module.
 //!
 //! A controller-mode image may be followed by a 16-byte deadline block
 //! (frame budget and overrun policy, [`encode_deadline`]; the table is in
@@ -109,6 +120,7 @@ use phasegate_controller::layout::JOINTS;
 use phasegate_controller::{Command, GaitWeights, Pose};
 
 mod deadline;
+pub mod reach;
 pub use deadline::{
     encode_deadline, parse_deadline, FrameStatus, DEADLINE_BLOCK_LEN, DEADLINE_MAGIC,
 };
@@ -151,6 +163,8 @@ pub enum Mode {
     Network,
     /// Controller commands: mix, command (mode 1).
     Controller,
+    /// The reaching loop: setup, then hand targets (mode 2).
+    Reach,
 }
 
 impl Mode {
@@ -159,6 +173,7 @@ impl Mode {
         match self {
             Mode::Network => 0,
             Mode::Controller => 1,
+            Mode::Reach => 2,
         }
     }
 
@@ -167,6 +182,7 @@ impl Mode {
         match v {
             0 => Ok(Mode::Network),
             1 => Ok(Mode::Controller),
+            2 => Ok(Mode::Reach),
             m => Err(WireError::UnknownMode(m)),
         }
     }
@@ -200,7 +216,7 @@ pub enum WireError {
     },
     /// The records do not match their CRC-32.
     CrcMismatch,
-    /// The header's mode is neither 0 (network) nor 1 (controller).
+    /// The header's mode is not 0 (network), 1 (controller) or 2 (reach).
     UnknownMode(u32),
     /// The deadline block after the records is damaged (CRC) or names a
     /// zero budget or an unknown policy.
@@ -226,7 +242,10 @@ impl core::fmt::Display for WireError {
             }
             WireError::CrcMismatch => f.write_str("records do not match their CRC-32"),
             WireError::UnknownMode(m) => {
-                write!(f, "unknown mode {m} (0 = network, 1 = controller)")
+                write!(
+                    f,
+                    "unknown mode {m} (0 = network, 1 = controller, 2 = reach)"
+                )
             }
             WireError::BadDeadline => f.write_str(
                 "damaged deadline block (CRC), or a zero budget or an unknown policy",
@@ -235,27 +254,27 @@ impl core::fmt::Display for WireError {
     }
 }
 
-fn u16_at(b: &[u8], at: usize) -> u16 {
+pub(crate) fn u16_at(b: &[u8], at: usize) -> u16 {
     match b.get(at..at + 2) {
         Some(&[x, y]) => u16::from_le_bytes([x, y]),
         _ => 0,
     }
 }
 
-fn u32_at(b: &[u8], at: usize) -> u32 {
+pub(crate) fn u32_at(b: &[u8], at: usize) -> u32 {
     match b.get(at..at + 4) {
         Some(&[x, y, z, w]) => u32::from_le_bytes([x, y, z, w]),
         _ => 0,
     }
 }
 
-fn put_u32(b: &mut [u8], at: usize, v: u32) {
+pub(crate) fn put_u32(b: &mut [u8], at: usize, v: u32) {
     if let Some(d) = b.get_mut(at..at + 4) {
         d.copy_from_slice(&v.to_le_bytes());
     }
 }
 
-fn put_u16(b: &mut [u8], at: usize, v: u16) {
+pub(crate) fn put_u16(b: &mut [u8], at: usize, v: u16) {
     if let Some(d) = b.get_mut(at..at + 2) {
         d.copy_from_slice(&v.to_le_bytes());
     }
@@ -317,12 +336,22 @@ impl InputHeader {
         match self.mode {
             Mode::Network => RECORD_HEAD_LEN + 4 * self.input_dim as usize,
             Mode::Controller => COMMAND_RECORD_LEN,
+            Mode::Reach => reach::TARGET_RECORD_LEN,
+        }
+    }
+
+    /// Bytes before the first record (after the header): reach mode's
+    /// setup, else none.
+    pub fn setup_len(&self) -> u64 {
+        match self.mode {
+            Mode::Reach => reach::setup_len(self.input_dim as usize) as u64,
+            _ => 0,
         }
     }
 
     /// Bytes of the whole image.
     pub fn image_len(&self) -> u64 {
-        HEADER_LEN as u64 + self.frames as u64 * self.record_len() as u64
+        HEADER_LEN as u64 + self.setup_len() + self.frames as u64 * self.record_len() as u64
     }
 
     /// The 32 header bytes.
@@ -341,7 +370,8 @@ impl InputHeader {
     }
 
     /// Parses and checks the header at the start of `region` (which may be
-    /// longer than the image); returns it and the records' bytes, CRC checked.
+    /// longer than the image); returns it and the records' bytes (in reach
+    /// mode, the setup and the records), CRC checked.
     pub fn parse(region: &[u8]) -> Result<(InputHeader, &[u8]), WireError> {
         check_preamble(region, INPUT_MAGIC, INPUT_VERSION)?;
         let h = InputHeader {
@@ -748,7 +778,8 @@ impl ProfileHeader {
 pub struct OutputHeader {
     /// Frames the firmware will write.
     pub frames: u32,
-    /// Outputs per frame.
+    /// Outputs per frame (reach mode: the frame width, the f32 each
+    /// record carries).
     pub output_dim: u32,
     /// The input image's CRC, echoed: binds these outputs to those inputs.
     pub input_crc: u32,
@@ -762,6 +793,7 @@ impl OutputHeader {
         match self.mode {
             Mode::Network => 8 + 6 * self.output_dim as usize,
             Mode::Controller => POSE_RECORD_LEN,
+            Mode::Reach => reach::frame_record_len(self.output_dim as usize),
         }
     }
 
@@ -925,6 +957,10 @@ pub mod exit {
     /// Controller mode on a firmware built without the `controller`
     /// feature.
     pub const NO_CONTROLLER: i32 = 9;
+    /// Reach mode: the image's layout does not fit the model or the
+    /// firmware's frame buffers (`Error::BadLayout`, `TooWide`), or its
+    /// first frame is not finite.
+    pub const BAD_LAYOUT: i32 = 10;
 
     /// One line saying what an exit code means.
     pub fn describe(code: i32) -> &'static str {
@@ -939,6 +975,7 @@ pub mod exit {
             BAD_STYLE => "style blob refused",
             NOT_PFNN => "model is not PFNN-shaped: the controller needs 342 inputs and 311 outputs",
             NO_CONTROLLER => "controller mode needs the firmware's `controller` feature",
+            BAD_LAYOUT => "reaching layout or first frame refused",
             _ => "unknown exit code",
         }
     }

@@ -63,7 +63,10 @@ pub fn parents_of(rig_json: &[u8]) -> Result<Vec<i32>> {
 }
 
 /// The start frame and each frame's target block of `args.script`.
-fn targets(args: &OmgRolloutArgs, d: &crate::omg::OmgDir) -> Result<(Vec<f64>, Vec<Vec<f64>>)> {
+pub(crate) fn targets(
+    args: &OmgRolloutArgs,
+    d: &crate::omg::OmgDir,
+) -> Result<(Vec<f64>, Vec<Vec<f64>>)> {
     let cfg = &d.omg.config;
     let tb = cfg.slice("target");
     let clip_index = |s: &str, n: usize, what: &str| -> Result<usize> {

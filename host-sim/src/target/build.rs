@@ -28,6 +28,8 @@ pub const TARGET: &str = "thumbv7em-none-eabihf";
 pub const BIN: &str = "phasegate-firmware";
 /// Binary name of the inference core (`firmware/src/bin/inference_core.rs`).
 pub const CORE_BIN: &str = "inference-core";
+/// The reach firmware's binary (`src/main.rs` with the `reach` feature).
+pub const REACH_BIN: &str = "reach-firmware";
 
 /// Outcome of one `cargo build`.
 #[derive(Debug)]
@@ -110,6 +112,18 @@ pub fn build_controller_firmware() -> Result<PathBuf> {
     build_checked(
         BIN,
         &["controller"],
+        Some(&firmware_dir().join("target").join("controller")),
+    )
+}
+
+/// Builds the reach firmware (the firmware's `reach-firmware` binary,
+/// `--features reach`) if needed and returns its ELF path. It shares the
+/// controller build's directory, `firmware/target/controller`: the same
+/// compiled dependencies, its own ELF.
+pub fn build_reach_firmware() -> Result<PathBuf> {
+    build_checked(
+        REACH_BIN,
+        &["reach"],
         Some(&firmware_dir().join("target").join("controller")),
     )
 }

@@ -19,7 +19,9 @@
 //!
 //! With `--controller SCRIPT` ([`controller`]) the firmware built with its
 //! `controller` feature runs the locomotion loop on the script's commands
-//! and every pose is compared with the same loop on the host.
+//! and every pose is compared with the same loop on the host; with
+//! `--reach SCRIPT` ([`reach`]) the firmware built with its `reach` feature
+//! runs the OMG reaching loop and every frame is compared likewise.
 //!
 //! By concern: [`build`] (cargo), [`elf`] (symbols, sections), [`frames`]
 //! (inputs, golden vectors), [`layers`] (per-stage figures), [`styles`] (style images, mix schedules),
@@ -36,6 +38,7 @@ pub mod frames;
 pub mod layers;
 pub mod log;
 pub mod qemu;
+pub mod reach;
 pub mod report;
 pub mod run;
 pub mod snapshot;
@@ -50,8 +53,8 @@ pub use phasegate_wire as wire;
 use std::path::PathBuf;
 
 pub use build::{
-    build_controller_firmware, build_firmware, build_inference_core, cargo_build, firmware_dir,
-    repo_root,
+    build_controller_firmware, build_firmware, build_inference_core, build_reach_firmware,
+    cargo_build, firmware_dir, repo_root,
 };
 pub use elf::ElfInfo;
 pub use frames::Frames;

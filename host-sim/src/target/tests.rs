@@ -1073,10 +1073,10 @@ fn command_images_and_pose_records_round_trip() {
     assert!(wire::read_command_record(&records[..39]).is_none());
     // An unknown mode is refused.
     let mut bad = image.clone();
-    bad[28] = 2;
+    bad[28] = 3;
     assert_eq!(
         wire::InputHeader::parse(&bad),
-        Err(wire::WireError::UnknownMode(2))
+        Err(wire::WireError::UnknownMode(3))
     );
 
     // Pose records: every value in its documented place.
