@@ -15,7 +15,8 @@ IDS = [p.name for p in MODEL_DIRS]
 
 
 def test_models_present():
-    assert "tiny_fe_r1" in IDS
+    # issue 10's committed set: tiny FE, small FE and small RBF-CAT on R1, the Frozen transfer on R4
+    assert {"tiny_fe_r1", "small_fe_r1", "small_rbfcat_r1", "tiny_fe_r4_frozen"} <= set(IDS)
 
 
 @pytest.fixture(scope="module", params=MODEL_DIRS, ids=IDS)
@@ -137,6 +138,10 @@ def test_float64_references_match_numpy_float64(model):
     the float64 NumPy forward are two implementations of one model: without float32 arithmetic
     they agree to the files' float32 rounding, one step and over the 300 fed-back frames."""
     _, d = model
+    if not (d / "ref64_one_step.npy").exists():
+        # Written only where the Rust f64 graph reads them (tests/tests/omg_models.rs): the
+        # small models carry the float32 references alone (models/omg/README.md, "Sizes").
+        pytest.skip(f"{d.name}: no ref64_*.npy (python3 -m tools.omg.train.references64 {d})")
     m = NumpyOMG(d, dtype=np.float64)
     r = _refs(d)
     one64 = np.load(d / "ref64_one_step.npy")
