@@ -452,6 +452,19 @@ fn inspect(path: &Path) -> Result<()> {
                 print!("{}", exporter::inspect::describe_style(&style));
                 Ok(())
             }
+            Err(phasegate::Error::NotAStyle) => match phasegate::RigInfo::from_bytes(&bytes) {
+                Ok(rig) => {
+                    let nodes: Vec<u32> = (0..32).filter(|i| (rig.nodes >> i) & 1 != 0).collect();
+                    println!(
+                        "rig blob {:?}: {} bytes, payload CRC {:#010x}, for the motion blob with \
+                         payload CRC {:#010x}; its nodes {nodes:?} (load it beside that blob: \
+                         host-sim omg-accuracy --motion --rig)",
+                        rig.name, rig.blob_len, rig.payload_crc, rig.base_crc
+                    );
+                    Ok(())
+                }
+                Err(e) => bail!("{}: {}", path.display(), exporter::inspect::explain(&e)),
+            },
             Err(e) => bail!("{}: {}", path.display(), exporter::inspect::explain(&e)),
         },
         Err(e) => bail!("{}: {}", path.display(), exporter::inspect::explain(&e)),
