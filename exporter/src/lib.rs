@@ -19,5 +19,6 @@ pub mod ops;
 pub mod pfnn_dir;
 pub mod plan;
 pub mod quantise;
+pub mod rig;
 pub mod sizes;
 pub mod style;

@@ -141,6 +141,35 @@ enum Command {
         #[command(flatten)]
         out: OutputArgs,
     },
+    /// Build a rig blob (docs/omg.md, "Rig blobs"): an OMG model's
+    /// autoencoder and output node, quantised against a motion blob (an
+    /// `exporter omg` blob, default options) and bound to it by its payload
+    /// CRC; the rest of the graph is the motion blob's.
+    OmgRig {
+        /// The motion blob the rig is for.
+        #[arg(long)]
+        base: PathBuf,
+        /// The rig's model (model.safetensors); its cost encoder, gate and
+        /// experts must be the motion blob's source model's.
+        #[arg(long)]
+        weights: PathBuf,
+        /// The rig's config.json.
+        #[arg(long)]
+        config: PathBuf,
+        /// The rig's name, stored in the blob (default: the weights'
+        /// directory name).
+        #[arg(long)]
+        name: Option<String>,
+        /// Weight width of the rig's nodes.
+        #[arg(long, default_value_t = 8, value_parser = parse_bits)]
+        weight_bits: u8,
+        /// Where to write the rig blob.
+        #[arg(short = 'o', long = "output")]
+        output: PathBuf,
+        /// Also write a JSON report (sizes, nodes, RAM of the combination).
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
     /// Decompose a dense model's layers by CP-ALS and write a CP blob.
     Cp(exporter::cp::cli::CpArgs),
     /// Write a blob from trained CP factors (.npz or .safetensors).
@@ -355,6 +384,61 @@ fn summary(r: &ExportReport, out: &Path) {
     );
 }
 
+fn omg_rig(
+    base: &Path,
+    weights: &Path,
+    config: &Path,
+    name: Option<String>,
+    weight_bits: u8,
+    output: &Path,
+    report: Option<&Path>,
+) -> Result<()> {
+    let motion = exporter::atomic::read_input(base)
+        .with_context(|| format!("cannot read {}", base.display()))?;
+    let omg = exporter::net::omg::read_omg(weights, config)?;
+    let name = name.unwrap_or_else(|| {
+        weights
+            .parent()
+            .and_then(Path::file_name)
+            .map_or_else(|| "rig".to_string(), |n| n.to_string_lossy().into_owned())
+    });
+    let opts = QuantOptions {
+        weights: if weight_bits == 16 {
+            WeightFormat::I16
+        } else {
+            WeightFormat::I8
+        },
+        headroom: exporter::net::omg::HEADROOM,
+        ..QuantOptions::default()
+    };
+    let mask = exporter::rig::rig_mask(&omg.net, &exporter::rig::OMG_RIG_NODES)
+        .with_context(|| config.display().to_string())?;
+    let (blob, rep) = exporter::rig::export_rig(&omg.net, &motion, mask, &name, &opts)
+        .with_context(|| format!("{} against {}", weights.display(), base.display()))?;
+    if let Some(path) = report {
+        exporter::atomic::write_atomic(path, &serde_json::to_vec_pretty(&rep)?)?;
+    }
+    if let Err(e) = exporter::atomic::write_atomic(output, &blob) {
+        if let Some(path) = report {
+            let _ = std::fs::remove_file(path);
+        }
+        return Err(e);
+    }
+    println!(
+        "{}: rig {:?}, {} bytes, for motion blob {} (payload CRC {:#010x}, {} bytes); \
+         the pair needs {} bytes of activation RAM, {} MACs per frame",
+        output.display(),
+        rep.name,
+        rep.blob_bytes,
+        base.display(),
+        rep.base_crc,
+        rep.motion_bytes,
+        rep.ram_bytes,
+        rep.macs_per_frame
+    );
+    Ok(())
+}
+
 fn inspect(path: &Path) -> Result<()> {
     let bytes = exporter::atomic::read_input(path)
         .with_context(|| format!("cannot read {}", path.display()))?;
@@ -368,6 +452,19 @@ fn inspect(path: &Path) -> Result<()> {
                 print!("{}", exporter::inspect::describe_style(&style));
                 Ok(())
             }
+            Err(phasegate::Error::NotAStyle) => match phasegate::RigInfo::from_bytes(&bytes) {
+                Ok(rig) => {
+                    let nodes: Vec<u32> = (0..32).filter(|i| (rig.nodes >> i) & 1 != 0).collect();
+                    println!(
+                        "rig blob {:?}: {} bytes, payload CRC {:#010x}, for the motion blob with \
+                         payload CRC {:#010x}; its nodes {nodes:?} (load it beside that blob: \
+                         host-sim omg-accuracy --motion --rig)",
+                        rig.name, rig.blob_len, rig.payload_crc, rig.base_crc
+                    );
+                    Ok(())
+                }
+                Err(e) => bail!("{}: {}", path.display(), exporter::inspect::explain(&e)),
+            },
             Err(e) => bail!("{}: {}", path.display(), exporter::inspect::explain(&e)),
         },
         Err(e) => bail!("{}: {}", path.display(), exporter::inspect::explain(&e)),
@@ -400,6 +497,23 @@ fn run(cli: Cli) -> Result<()> {
             let omg = exporter::net::omg::read_omg(&weights, &config)?;
             export(&omg.net, None, &out, exporter::net::omg::HEADROOM, &weights)
         }
+        Command::OmgRig {
+            base,
+            weights,
+            config,
+            name,
+            weight_bits,
+            output,
+            report,
+        } => omg_rig(
+            &base,
+            &weights,
+            &config,
+            name,
+            weight_bits,
+            &output,
+            report.as_deref(),
+        ),
         Command::Cp(a) => exporter::cp::cli::cp(&a),
         Command::CpImport(a) => exporter::cp::cli::cp_import(&a),
         Command::CpReport(a) => exporter::cp::cli::cp_report(&a),

@@ -65,6 +65,11 @@ pub struct QuantOptions {
     /// so that formats and rounding also fit the inputs a controller feeds.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub calibration_data: Option<Recorded>,
+    /// Graph nodes whose row formats (fraction bits, one per row) are
+    /// given instead of calibrated: a rig quantised against a motion
+    /// blob's interface formats ([`crate::rig`]).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub row_formats: BTreeMap<usize, Vec<u8>>,
 }
 
 /// Calibration samples of error-aware rounding when the command line asks
@@ -136,6 +141,7 @@ impl Default for QuantOptions {
             layer_weights: BTreeMap::new(),
             compensation_samples: 0,
             calibration_data: None,
+            row_formats: BTreeMap::new(),
         }
     }
 }

@@ -96,7 +96,7 @@ pub enum Error {
         /// Index of the first offending value.
         index: u32,
     },
-    /// The blob is a style (adapter) blob where a model was expected.
+    /// The blob is a style (adapter) or rig blob where a model was expected.
     NotAModel,
     /// The blob is a model where a style (adapter) blob was expected.
     NotAStyle,
@@ -135,6 +135,28 @@ pub enum Error {
     /// the same elements, or a buffer past the arena's end.
     ArenaOverlap {
         /// Index of the node whose buffers collide (`255` for the input).
+        node: u8,
+    },
+    /// The blob is not a rig blob where one was expected.
+    #[cfg(feature = "rig")]
+    NotARig,
+    /// The rig was built for another motion blob: its recorded base CRC
+    /// differs from the motion blob's payload CRC.
+    #[cfg(feature = "rig")]
+    RigMismatch {
+        /// Payload CRC-32 of the motion blob in use.
+        motion_crc: u32,
+        /// Payload CRC-32 of the motion blob the rig was built for.
+        rig_crc: u32,
+    },
+    /// The rig's graph does not fit the motion blob at this node: a motion
+    /// node that differs from the motion blob's, a rig node that is not a
+    /// layer or past the graph, another gating, or an interface whose
+    /// formats differ (input-stage records of a slice a motion node reads,
+    /// the row formats of a rig node a motion node reads).
+    #[cfg(feature = "rig")]
+    RigIncompatible {
+        /// Index of the node (`255` for the header).
         node: u8,
     },
 }
@@ -190,9 +212,9 @@ impl fmt::Display for Error {
                 write!(f, "slice length {found}, model needs {expected}")
             }
             Error::NonFinite { index } => write!(f, "value {index} is NaN or infinite"),
-            Error::NotAModel => {
-                f.write_str("blob is a style (adapter) blob, not a model: load it as a style")
-            }
+            Error::NotAModel => f.write_str(
+                "blob is a style (adapter) or rig blob, not a model: load it beside its base",
+            ),
             Error::NotAStyle => f.write_str("blob is a model, not a style (adapter) blob"),
             Error::StyleMismatch {
                 base_crc,
@@ -217,6 +239,19 @@ impl fmt::Display for Error {
             Error::ArenaOverlap { node } => write!(
                 f,
                 "arena plan of node {node} overlaps a live buffer or leaves the arena"
+            ),
+            #[cfg(feature = "rig")]
+            Error::NotARig => f.write_str("blob is not a rig blob"),
+            #[cfg(feature = "rig")]
+            Error::RigMismatch { motion_crc, rig_crc } => write!(
+                f,
+                "rig was built for the motion blob with payload CRC {rig_crc:#010x}, \
+                 but the motion blob in use has payload CRC {motion_crc:#010x}"
+            ),
+            #[cfg(feature = "rig")]
+            Error::RigIncompatible { node } => write!(
+                f,
+                "rig does not fit the motion blob at node {node} (op, gating or interface formats differ)"
             ),
         }
     }

@@ -139,6 +139,14 @@ enum Command {
         /// The int8 blob's quantiser knobs, as `exporter omg` takes them.
         #[command(flatten)]
         int8: host_sim::quant_knobs::Int8Knobs,
+        /// Instead of exporting blobs: measure this motion blob with
+        /// --rig against the f64 model of the one directory given (the
+        /// rig's model; docs/omg.md, "Rig blobs").
+        #[arg(long, requires = "rig")]
+        motion: Option<PathBuf>,
+        /// The rig blob run with --motion.
+        #[arg(long, requires = "motion")]
+        rig: Option<PathBuf>,
     },
     /// Run a blob on the Cortex-M4 firmware under QEMU, bit for bit against the host runtime.
     Target {
@@ -382,7 +390,20 @@ fn run(cli: Cli) -> Result<()> {
             calibration_scale,
             headroom,
             int8,
+            motion,
+            rig,
         } => {
+            if let (Some(motion), Some(rig)) = (&motion, &rig) {
+                let [dir] = dirs.as_slice() else {
+                    anyhow::bail!("--motion and --rig measure one model directory, the rig's");
+                };
+                let (text, a) = host_sim::omg::rig_pair_report(dir, motion, rig)?;
+                print!("{text}");
+                if let Some(path) = json {
+                    exporter::atomic::write_atomic(&path, &serde_json::to_vec_pretty(&a)?)?;
+                }
+                return Ok(());
+            }
             let opts = exporter::quantise::QuantOptions {
                 calibration_scale,
                 headroom,

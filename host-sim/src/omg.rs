@@ -243,7 +243,15 @@ pub struct FixedOmg<'b> {
 impl<'b> FixedOmg<'b> {
     /// Loads `blob` (an OMG graph blob).
     pub fn new(blob: &'b [u8]) -> Result<Self> {
-        let model = Model::from_bytes(blob).map_err(|e| anyhow!("model blob: {e}"))?;
+        Self::with_model(Model::from_bytes(blob).map_err(|e| anyhow!("model blob: {e}"))?)
+    }
+
+    /// Loads a motion blob with a rig blob for it (docs/omg.md, "Rig blobs").
+    pub fn with_rig(motion: &'b [u8], rig: &'b [u8]) -> Result<Self> {
+        Self::with_model(Model::with_rig(motion, rig).map_err(|e| anyhow!("{e}"))?)
+    }
+
+    fn with_model(model: Model<'b>) -> Result<Self> {
         let (n_in, n_out) = (model.input_dim(), model.output_dim());
         Ok(FixedOmg {
             rt: host_runtime(model)?,
@@ -489,7 +497,66 @@ pub fn int8_sized_noise(d: &OmgDir, seed: u64) -> Result<Diff> {
 /// Measures a blob of `d`'s model against its f64 forward.
 pub fn fixed_agreement(d: &OmgDir, blob: &[u8], weights: &'static str) -> Result<FixedAgreement> {
     let model = Model::from_bytes(blob).map_err(|e| anyhow!("model blob: {e}"))?;
-    let mut fx = FixedOmg::new(blob)?;
+    agreement(d, model, FixedOmg::new(blob)?, weights)
+}
+
+/// Measures a motion blob with a rig blob against the f64 forward of
+/// `d`'s model (the rig's); `blob_bytes` is the rig blob's.
+pub fn rig_agreement(
+    d: &OmgDir,
+    motion: &[u8],
+    rig: &[u8],
+    weights: &'static str,
+) -> Result<FixedAgreement> {
+    let model = Model::with_rig(motion, rig).map_err(|e| anyhow!("{e}"))?;
+    agreement(d, model, FixedOmg::with_rig(motion, rig)?, weights)
+}
+
+/// `host-sim omg-accuracy DIR --motion M --rig R`: the pair against the
+/// f64 forward of `dir`'s model, as a table and as figures.
+pub fn rig_pair_report(dir: &Path, motion: &Path, rig: &Path) -> Result<(String, FixedAgreement)> {
+    let read = |p: &Path| {
+        exporter::atomic::read_input(p).with_context(|| format!("cannot read {}", p.display()))
+    };
+    let (m, r) = (read(motion)?, read(rig)?);
+    let d = load_dir(dir)?;
+    let a = rig_agreement(&d, &m, &r, "rig")
+        .with_context(|| format!("{} with {}", rig.display(), motion.display()))?;
+    let horizons: Vec<String> = a
+        .rollout_by_horizon
+        .iter()
+        .map(|(h, x)| format!("{h}: {:.4}", x.p99_joint_m * 100.0))
+        .collect();
+    let text = format!(
+        "{} + rig {} vs the f64 forward of {}\n  motion blob {} bytes, rig blob {} bytes; \
+         the pair needs {} bytes of activation RAM ({} i16 elements), {} MACs per frame\n  \
+         one step: joint p99 {:.4} cm, max {:.4} cm, position max {:.4} cm\n  \
+         grounded rollout: joint p99 {:.4} cm, max {:.4} cm, mean {:.4} cm; p99 by horizon (cm) {}\n",
+        motion.display(),
+        rig.display(),
+        dir.display(),
+        m.len(),
+        r.len(),
+        a.ram_bytes,
+        a.ram_bytes / 2,
+        a.macs_per_frame,
+        a.one_step.p99_joint_m * 100.0,
+        a.one_step.max_joint_m * 100.0,
+        a.one_step_pos_max_m * 100.0,
+        a.rollout.p99_joint_m * 100.0,
+        a.rollout.max_joint_m * 100.0,
+        a.rollout.mean_joint_m * 100.0,
+        horizons.join(", ")
+    );
+    Ok((text, a))
+}
+
+fn agreement(
+    d: &OmgDir,
+    model: Model<'_>,
+    mut fx: FixedOmg<'_>,
+    weights: &'static str,
+) -> Result<FixedAgreement> {
     let yf = one_step(d, |x| Ok(d.omg.frame(&fx.run(x)?, x)))?;
     let yr = one_step(d, |x| Ok(d.omg.step(x)))?;
     let pos = d.omg.config.slice("pos");
@@ -505,7 +572,7 @@ pub fn fixed_agreement(d: &OmgDir, blob: &[u8], weights: &'static str) -> Result
     }
     Ok(FixedAgreement {
         weights,
-        blob_bytes: blob.len(),
+        blob_bytes: model.blob_len(),
         macs_per_frame: model.macs_per_frame(),
         ram_bytes: model.ram_bytes(),
         one_step: diff(&d.omg, &yf, &yr),

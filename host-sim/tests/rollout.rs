@@ -125,6 +125,7 @@ fn rollout_compare_render_and_plot_end_to_end() {
         frames: Some(90),
         out: fixed_out.clone(),
         omg: None,
+        rig: None,
         data: None,
         faithful: false,
     };
@@ -181,6 +182,7 @@ fn rollout_compare_render_and_plot_end_to_end() {
         frames: Some(10),
         out: dir.path().join("x.npz"),
         omg: None,
+        rig: None,
         data: None,
         faithful: false,
     })
@@ -222,6 +224,7 @@ fn omg_rollout_compare_and_render_end_to_end() {
         frames: Some(60),
         out: float_out.clone(),
         omg: Some(omg.clone()),
+        rig: None,
         data: None,
         faithful: false,
     };

@@ -29,6 +29,8 @@ pub mod mac_count;
 mod model;
 pub mod ops;
 pub mod probe;
+#[cfg(feature = "rig")]
+pub mod rig;
 mod runtime;
 pub mod style;
 
@@ -40,5 +42,7 @@ pub use fixed::phase::Phase;
 pub use fixed::softmax::MAX_LOGITS;
 pub use model::{macs, node_gating, Model, MAX_GATES, STAGE};
 pub use probe::{Mark, NoProbe, Probe};
+#[cfg(feature = "rig")]
+pub use rig::RigInfo;
 pub use runtime::Runtime;
 pub use style::{Mix, Style, StyleId};

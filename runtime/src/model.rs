@@ -29,6 +29,13 @@ pub const MAX_GATES: usize = 2;
 pub struct Model<'a> {
     header: Header<NodeTable<'a>>,
     payload: &'a [u8],
+    /// Where the nodes outside `own` keep their sections: the motion
+    /// blob's payload for a motion blob with a rig, else `payload`.
+    #[cfg(feature = "rig")]
+    base: &'a [u8],
+    /// Bit `i` set: node `i`'s sections are in `payload` (the rig's nodes).
+    #[cfg(feature = "rig")]
+    own: u32,
     blob_len: usize,
 }
 
@@ -52,13 +59,53 @@ impl<'a> Model<'a> {
             payload,
             blob_len,
         } = Framed::parse(bytes, exact)?;
+        if !is_model(&header.kind) {
+            return Err(Error::NotAModel);
+        }
         let model = Model {
             header,
             payload,
+            #[cfg(feature = "rig")]
+            base: payload,
+            #[cfg(feature = "rig")]
+            own: 0,
             blob_len,
         };
         model.validate()?;
         Ok(model)
+    }
+
+    /// A motion blob and a rig for it as one model (see [`crate::rig`]);
+    /// `validate` checks it like a single blob.
+    #[cfg(feature = "rig")]
+    pub(crate) fn combined(motion: &Model<'a>, rig: Framed<'a>, nodes: u32) -> Result<Self> {
+        let model = Model {
+            header: rig.header,
+            payload: rig.payload,
+            base: motion.payload,
+            own: nodes,
+            blob_len: rig.blob_len,
+        };
+        model.validate()?;
+        Ok(model)
+    }
+
+    /// Bit `i` set: node `i`'s sections are in [`Model::payload`].
+    #[cfg(feature = "rig")]
+    pub(crate) fn own_nodes(&self) -> u32 {
+        self.own
+    }
+
+    /// The payload holding node `i`'s sections: the rig's for its nodes,
+    /// the motion blob's for the others (a single blob's for all).
+    #[inline(always)]
+    pub fn node_payload(&self, i: usize) -> &'a [u8] {
+        #[cfg(feature = "rig")]
+        if (self.own >> (i & 31)) & 1 == 0 {
+            return self.base;
+        }
+        let _ = i;
+        self.payload
     }
 
     /// The header; its nodes decode one at a time ([`Nodes`]), or all
@@ -67,7 +114,7 @@ impl<'a> Model<'a> {
         &self.header
     }
 
-    /// Bytes of the whole blob.
+    /// Bytes of the whole blob (of the rig blob, for a motion blob with a rig).
     pub fn blob_len(&self) -> usize {
         self.blob_len
     }
@@ -107,7 +154,7 @@ impl<'a> Model<'a> {
     /// a softmax gate or past the last node).
     pub fn kernel(&self, i: usize) -> Option<Layer<'a>> {
         let d = *self.header.nodes.node(i)?.layer()?;
-        Layer::new(self.payload, d, i as u8)
+        Layer::new(self.node_payload(i), d, i as u8)
     }
 
     /// The nodes, in evaluation order.
@@ -115,7 +162,8 @@ impl<'a> Model<'a> {
         &self.header.nodes
     }
 
-    /// The payload bytes (CRC verified).
+    /// The payload bytes (CRC verified; the rig's, for a motion blob with
+    /// a rig: [`Model::node_payload`] says where each node's sections are).
     pub fn payload(&self) -> &'a [u8] {
         self.payload
     }
@@ -132,9 +180,6 @@ impl<'a> Model<'a> {
 
     fn validate(&self) -> Result<()> {
         let h = &self.header;
-        if matches!(h.kind, ModelKind::Style { .. }) {
-            return Err(Error::NotAModel);
-        }
         validate_gating(&h.gating)?;
         check_structure(h)?;
         let mut gates = 0;
@@ -146,7 +191,7 @@ impl<'a> Model<'a> {
                     if d.experts != node_gating(&h.gating, &h.nodes, &n).experts() {
                         return Err(Error::GatingMismatch { layer: id });
                     }
-                    Layer::bind(self.payload, *d, id)?;
+                    Layer::bind(self.node_payload(i), *d, id)?;
                 }
                 NodeOp::Softmax(s) => {
                     gates += 1;
@@ -175,7 +220,7 @@ impl<'a> Model<'a> {
         }
         for (i, n) in h.nodes.each().enumerate() {
             if let Some(d) = n.layer() {
-                Layer::bind(self.payload, *d, i as u8)?
+                Layer::bind(self.node_payload(i), *d, i as u8)?
                     .check(&node_gating(&h.gating, &h.nodes, &n))?;
             }
         }
@@ -215,6 +260,16 @@ impl<'a> Model<'a> {
             return Err(Error::UnsupportedParameter { layer: STAGE });
         }
         Ok(())
+    }
+}
+
+/// Whether a blob of `kind` runs alone (styles and rigs run beside one).
+fn is_model(kind: &ModelKind) -> bool {
+    match kind {
+        ModelKind::Style { .. } => false,
+        #[cfg(feature = "rig")]
+        ModelKind::Rig { .. } => false,
+        _ => true,
     }
 }
 

@@ -350,7 +350,7 @@ fn forward_graph(
                 probe.mark(Mark::Done(id));
                 continue;
             }
-            NodeOp::Layer(d) => Layer::new(model.payload(), *d, id)
+            NodeOp::Layer(d) => Layer::new(model.node_payload(i), *d, id)
                 .ok_or(Error::SectionOutOfBounds { layer: id })?,
         };
         let gate = match node.gate {

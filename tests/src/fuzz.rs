@@ -73,7 +73,7 @@ pub fn raw_header(blob: &[u8]) -> Option<Header> {
 /// padding and the header is re-encoded (leftover header bytes dropped);
 /// the header CRC is always recomputed when the header is all there. The
 /// magic and version bytes are kept as they are. `base_crc`, when given,
-/// re-binds a style header to that base.
+/// re-binds a style or rig header to that base.
 pub fn reseal(blob: &[u8], base_crc: Option<u32>) -> Vec<u8> {
     if blob.len() < PREAMBLE {
         return blob.to_vec();
@@ -85,8 +85,10 @@ pub fn reseal(blob: &[u8], base_crc: Option<u32>) -> Vec<u8> {
             let payload = &blob[p..];
             header.payload_len = payload.len() as u32;
             header.payload_crc = crc32(payload);
-            if let (Some(crc), ModelKind::Style { base_crc, .. }) = (base_crc, &mut header.kind) {
-                *base_crc = crc;
+            match (base_crc, &mut header.kind) {
+                (Some(crc), ModelKind::Style { base_crc, .. })
+                | (Some(crc), ModelKind::Rig { base_crc, .. }) => *base_crc = crc,
+                _ => {}
             }
             let mut out = exporter::encode::frame(&header, payload);
             out[..6].copy_from_slice(&blob[..6]);
@@ -334,6 +336,53 @@ pub fn exercise_styled(bytes: &[u8]) -> usize {
         }
     }
     frames
+}
+
+/// The `rig` target: a motion blob followed by a rig blob (each in its own
+/// flash region on a device); the pair loads exactly and as regions, and
+/// what loads runs every extreme input at the edge phases.
+pub fn exercise_rig(bytes: &[u8]) -> usize {
+    let chain = split_chain(bytes);
+    let (Some(motion), Some(rig)) = (chain.first(), chain.get(1)) else {
+        return 0;
+    };
+    let _ = phasegate::RigInfo::from_bytes(rig);
+    let mut frames = 0;
+    for model in [
+        Model::with_rig(motion, rig),
+        Model::with_rig_regions(motion, rig),
+    ]
+    .into_iter()
+    .flatten()
+    {
+        let _ = (
+            model.header().decoded(),
+            model.rig_nodes(),
+            model.arena_elements(),
+        );
+        if let Ok(mut rt) = Runtime::<ARENA>::new(model) {
+            frames += run_frames(&mut rt, &PHASES);
+        }
+    }
+    frames
+}
+
+/// A small motion blob (the branching graph of
+/// `host_sim::target::synthetic::branching_net`, OMG-shaped) and a rig
+/// blob of its encoder and decoder (`pose1`, `pose2`, `dec1`, `dec2`).
+pub fn small_rig_pair() -> (Vec<u8>, Vec<u8>) {
+    use exporter::quantise::QuantOptions;
+    let net = host_sim::target::synthetic::branching_net(7);
+    let opts = QuantOptions {
+        calibration_samples: 64,
+        ..QuantOptions::default()
+    };
+    let motion = exporter::export::export(&net, None, &opts).unwrap().0;
+    let mask = exporter::rig::rig_mask(&net, &["pose1", "pose2", "dec1", "dec2"]).unwrap();
+    let rig = exporter::rig::export_rig(&net, &motion, mask, "small", &opts)
+        .unwrap()
+        .0;
+    (motion, rig)
 }
 
 /// A float from a tag byte and the bytes after it: most tags pick a hostile
@@ -879,6 +928,9 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
         }
         v.push(("styled", "default+2.bin".into(), chain));
     }
+    // Rigs: a small motion blob followed by a rig blob for it.
+    let (motion, rig) = small_rig_pair();
+    v.push(("rig", "motion+rig.bin".into(), [motion, rig].concat()));
     // Controller commands: walk, jog, stand, crouch, a reset, hostile values.
     let enc = |vals: &[f32]| -> Vec<u8> {
         let mut out = vec![0u8];

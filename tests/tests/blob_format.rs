@@ -751,8 +751,11 @@ fn with_version(blob: &[u8], version: u16) -> Vec<u8> {
 #[test]
 fn fixtures_are_current() {
     let v1 = hex(EXAMPLE_V1_HEX);
+    let (motion, rig) = phasegate_tests::fuzz::small_rig_pair();
     let wanted = [
         ("example-v2.blob", example_blob(), true),
+        ("rig-motion-v2.blob", motion, true),
+        ("rig-v2.blob", rig, true),
         ("example-v1.blob", v1.clone(), false),
         ("version0.blob", with_version(&v1, 0), false),
     ];
@@ -780,6 +783,39 @@ fn version2_fixture_loads_and_runs() {
     rt.run(Phase::from_bits(0), &[1.5, -0.25], &mut y).unwrap();
     assert_eq!(y, [3703.0 / 128.0 - 2.5]); // 26.4296875
 }
+
+/// The version-2 rig fixture (a small motion blob and a rig blob of its
+/// own encoder and decoder) must keep loading as a pair and computing what
+/// the motion blob computes alone, the outputs pinned by their CRC.
+#[test]
+fn version2_rig_fixture_loads_and_runs() {
+    let motion = std::fs::read(fixture("rig-motion-v2.blob")).unwrap();
+    let rig = std::fs::read(fixture("rig-v2.blob")).unwrap();
+    let run = |model: Model<'_>| -> Vec<i16> {
+        let mut rt: Box<Runtime<'_, 4096>> = Box::new(Runtime::new(model).unwrap());
+        let n = rt.model().input_dim();
+        let mut out = Vec::new();
+        for k in 0..8i32 {
+            let q: Vec<i16> = (0..n as i32)
+                .map(|i| ((i * 977 + k * 331) % 4001 - 2000) as i16)
+                .collect();
+            out.extend_from_slice(rt.run_quantised(Phase::from_bits(0), &q).unwrap());
+        }
+        out
+    };
+    let pair = run(Model::with_rig(&motion, &rig).unwrap());
+    assert_eq!(pair, run(Model::from_bytes(&motion).unwrap()));
+    let bytes: Vec<u8> = pair.iter().flat_map(|v| v.to_le_bytes()).collect();
+    assert_eq!(
+        crc32(&bytes),
+        RIG_FIXTURE_OUTPUT_CRC,
+        "{:#010x}",
+        crc32(&bytes)
+    );
+}
+
+/// CRC-32 of the rig fixture's outputs (i16 LE) in `version2_rig_fixture_loads_and_runs`.
+const RIG_FIXTURE_OUTPUT_CRC: u32 = 0x2865_2e09;
 
 /// Version 1 is retired: its record is refused with the version error,
 /// and nothing after the preamble's version field is looked at.

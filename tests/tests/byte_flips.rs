@@ -1,5 +1,5 @@
 //! Every byte of a small blob of every model kind (dense, CP + diagonal,
-//! softmax-gated graph, the three style forms) and of the kept fixtures of
+//! softmax-gated graph, the three style forms, a rig blob) and of the kept fixtures of
 //! other format versions flipped, one at a time: each damaged blob is
 //! refused, exactly and as a region, with the error of the framing region
 //! the byte lies in (`docs/blob-format.md`, "What the loader checks",
@@ -99,6 +99,31 @@ fn every_byte_of_a_blob_of_every_kind_is_refused_with_the_error_of_its_region() 
         assert!(kinds.iter().any(|n| n == k), "{k} missing from {kinds:?}");
     }
     assert!(flips > 40_000, "{flips}");
+}
+
+/// The small motion blob the rig of [`load_rig`] is for.
+fn small_motion() -> &'static [u8] {
+    static PAIR: std::sync::OnceLock<(Vec<u8>, Vec<u8>)> = std::sync::OnceLock::new();
+    &PAIR.get_or_init(phasegate_tests::fuzz::small_rig_pair).0
+}
+
+/// Loads a rig blob beside the small motion blob, exactly or from regions.
+fn load_rig(bytes: &[u8], exact: bool) -> Result<(), Error> {
+    if exact {
+        Model::with_rig(small_motion(), bytes).map(|_| ())
+    } else {
+        Model::with_rig_regions(small_motion(), bytes).map(|_| ())
+    }
+}
+
+/// Rig blobs have the model blob's framing: every byte of a small one
+/// flipped gives the error of its region, its motion blob intact.
+#[test]
+fn every_byte_of_a_rig_blob_is_refused_with_the_error_of_its_region() {
+    let (_, rig) = phasegate_tests::fuzz::small_rig_pair();
+    load_rig(&rig, true).unwrap();
+    let flips = check_all_bytes("rig.blob", &rig, load_rig);
+    assert_eq!(flips, 2 * rig.len());
 }
 
 /// The flipped blobs have every framing region: each a header and a

@@ -167,6 +167,11 @@ fn styled_target_equivalent() {
 }
 
 #[test]
+fn rig_target_equivalent() {
+    blob_cases("rig", 300, 9, fuzz::exercise_rig);
+}
+
+#[test]
 fn controller_target_equivalent() {
     // Arbitrary command bytes, and the seeds edited.
     let strategy = proptest::collection::vec(any::<u8>(), 0..400);
@@ -221,6 +226,7 @@ fn seeds_are_valid_files() {
                 }
             }
             "styled" => fuzz::exercise_styled(bytes) > 0,
+            "rig" => fuzz::exercise_rig(bytes) > 0,
             "controller" => fuzz::exercise_controller(bytes) > 0,
             "reach" => fuzz::exercise_reach(bytes) > 0,
             "weights" => (fuzz::exercise_weights(bytes) > 0) != name.starts_with("hostile-"),

@@ -112,6 +112,18 @@ pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quant
                 .collect()
         })
         .collect();
+    for (&i, given) in &opts.row_formats {
+        match fracs.get_mut(i) {
+            Some(f) if f.len() == given.len() => f.clone_from(given),
+            _ => {
+                return Err(QuantError::Invalid(format!(
+                    "node {i}: {} row formats given for a node of {} rows",
+                    given.len(),
+                    fracs.get(i).map_or(0, Vec::len)
+                )))
+            }
+        }
+    }
     let mut softmax_frac = BTreeMap::new();
     for (i, n) in g.nodes.iter().enumerate() {
         if n.op != GraphOp::Softmax {

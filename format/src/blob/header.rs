@@ -39,6 +39,24 @@ pub enum ModelKind {
     /// Any other graph (OMG-shaped networks and the like): a network the
     /// locomotion controller does not drive.
     Graph,
+    /// A rig: the rig-specific nodes of a graph (an OMG autoencoder and the
+    /// output node reading its decoder) for one motion blob, loaded beside
+    /// it (see `docs/graph-format.md`, "Rig blobs"). Its node table is the
+    /// whole graph of the combination: the nodes of `nodes` have their
+    /// sections in this blob's payload, every other node is the motion
+    /// blob's node of the same index, op for op, its sections in the
+    /// motion blob's payload. `input_stage` and `output_stage` are the
+    /// rig's own, in this payload. (With the runtime's `rig` feature only;
+    /// without it such a header does not decode.)
+    #[cfg(feature = "rig")]
+    Rig {
+        /// `payload_crc` of the motion blob this rig was built for.
+        base_crc: u32,
+        /// Bit `i` set: node `i` is the rig's (at most [`MAX_NODES`] bits).
+        nodes: u32,
+        /// The rig's name, UTF-8, at most [`MAX_STYLE_NAME`] bytes.
+        name: Section,
+    },
 }
 
 /// Longest style name, bytes.

@@ -30,6 +30,8 @@ pub struct OmgRolloutArgs {
     pub dir: PathBuf,
     /// A blob of the model: run it on the fixed-point runtime.
     pub model: Option<PathBuf>,
+    /// A rig blob for `model` (then a motion blob): run the pair.
+    pub rig: Option<PathBuf>,
     /// A target script: a built-in name, a JSON file, `ref:N` or `clip:N`.
     pub script: String,
     /// The generated data (`tools/omg/generate --out`), for `clip:N`.
@@ -134,9 +136,34 @@ pub fn run(args: &OmgRolloutArgs) -> Result<(OmgRecord, String)> {
         Some(path) => {
             let blob = exporter::atomic::read_input(path)
                 .with_context(|| format!("cannot read {}", path.display()))?;
-            let mut net = FixedOmg::new(&blob).with_context(|| format!("{}", path.display()))?;
+            let rig = match &args.rig {
+                Some(r) => Some((
+                    r,
+                    exporter::atomic::read_input(r)
+                        .with_context(|| format!("cannot read {}", r.display()))?,
+                )),
+                None => None,
+            };
+            let (mut net, label) = match &rig {
+                None => (
+                    FixedOmg::new(&blob).with_context(|| format!("{}", path.display()))?,
+                    format!("fixed point ({})", path.display()),
+                ),
+                Some((r, bytes)) => {
+                    let m = phasegate::Model::with_rig(&blob, bytes).map_err(|e| {
+                        anyhow::anyhow!("{} with {}: {e}", r.display(), path.display())
+                    })?;
+                    let label = format!(
+                        "fixed point ({} with rig {}; activation RAM {} bytes)",
+                        path.display(),
+                        r.display(),
+                        m.ram_bytes()
+                    );
+                    (FixedOmg::with_rig(&blob, bytes)?, label)
+                }
+            };
             let frames = rollout(&d.omg, &start, &t, args.mode, &mut net)?;
-            (frames, format!("fixed point ({})", path.display()))
+            (frames, label)
         }
         None => {
             let frames = rollout(&d.omg, &start, &t, args.mode, &mut FloatOmg(&d.omg))?;
@@ -309,6 +336,7 @@ mod tests {
         OmgRolloutArgs {
             dir: dir(),
             model: None,
+            rig: None,
             script: script.into(),
             data: None,
             frames: Some(40),

@@ -60,6 +60,10 @@ pub struct RolloutArgs {
     /// ref:N, clip:N; docs/omg.md), in f64 or, with --model, fixed point.
     #[arg(long, conflicts_with = "reference")]
     pub omg: Option<PathBuf>,
+    /// With --omg and --model: a rig blob for that (motion) blob, run as
+    /// one model with it (docs/omg.md, "Rig blobs").
+    #[arg(long, requires_all = ["omg", "model"])]
+    pub rig: Option<PathBuf>,
     /// With --omg and clip:N: the generated data (tools/omg/generate --out).
     #[arg(long, requires = "omg")]
     pub data: Option<PathBuf>,
@@ -147,6 +151,7 @@ fn omg_rollout_cmd(args: &RolloutArgs, dir: &Path) -> Result<()> {
     let (r, label) = crate::omg_rollout::run(&crate::omg_rollout::OmgRolloutArgs {
         dir: dir.to_path_buf(),
         model: args.model.clone(),
+        rig: args.rig.clone(),
         script: args.script.clone(),
         data: args.data.clone(),
         frames: args.frames,

@@ -77,6 +77,7 @@ pub fn plan_from_script(
     let args = OmgRolloutArgs {
         dir: dir.to_path_buf(),
         model: None,
+        rig: None,
         script: script.to_string(),
         data,
         frames: Some(steps + 1),

@@ -222,7 +222,7 @@ impl<'a> Style<'a> {
     }
 }
 
-fn name_str(payload: &[u8], s: Section) -> Result<&str> {
+pub(crate) fn name_str(payload: &[u8], s: Section) -> Result<&str> {
     let bad = Error::UnsupportedParameter { layer: STAGE };
     let end = s.end().ok_or(Error::SectionOutOfBounds { layer: STAGE })?;
     let bytes = payload
