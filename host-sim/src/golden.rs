@@ -9,6 +9,7 @@
 //! | `dense-int16` | the same network | dense x3 | int16 |
 //! | `cp-diagonal` | a synthetic 48 -> 40 -> 40 -> 24 network | CP (rank 12), diagonal, CP (rank 6) | int8 |
 //! | `omg-tiny-fe-r1` | the trained tiny FE-OMG model (`models/omg/tiny_fe_r1`, `host-sim demo`'s), 440 -> 404, on its first 64 reference frames | dense x15 (MLPs, 4-expert layers), softmax gate | int8 |
+//! | `omg-small-rbfcat-r1` | the committed small RBF-CAT OMG model (`models/omg/small_rbfcat_r1`), 440 -> 404, on its first 64 reference frames | dense x15, RBF (16 clusters over the 64-wide latent), softmax gate | int8 (RBF centres int16) |
 //! | `softmax-graph` | the branching proof model (`synthetic::branching_net`: gating MLP -> softmax; two encoders -> concatenation -> three softmax-gated layers -> decoder on a slice), 40 -> 10 | dense x12, softmax gate | int8 |
 //!
 //! Regenerate them all (after a deliberate change to the arithmetic) with
@@ -33,12 +34,13 @@ pub const FRAMES: usize = 64;
 /// Seed of the golden inputs.
 pub const INPUT_SEED: u64 = 0x601D_0001;
 /// Every case, by directory name.
-pub const CASES: [&str; 5] = [
+pub const CASES: [&str; 6] = [
     "default",
     "dense-int16",
     "cp-diagonal",
     "softmax-graph",
     OMG_CASE,
+    RBF_CASE,
 ];
 
 /// The trained OMG model `host-sim demo` runs (its float source is the
@@ -46,9 +48,18 @@ pub const CASES: [&str; 5] = [
 /// inputs are the model's first reference frames, phases 0).
 pub const OMG_CASE: &str = "omg-tiny-fe-r1";
 
+/// The RBF op's case: a trained RBF-CAT model, read from its committed
+/// directory (so no `model.npz` either), on its first reference frames.
+pub const RBF_CASE: &str = "omg-small-rbfcat-r1";
+
+/// The committed model directory of [`RBF_CASE`].
+fn rbf_case_model() -> std::path::PathBuf {
+    crate::target::build::repo_root().join("models/omg/small_rbfcat_r1")
+}
+
 /// The files of a bundle.
 pub fn files(case: &str) -> &'static [&'static str] {
-    if case == OMG_CASE {
+    if case == OMG_CASE || case == RBF_CASE {
         &[
             "model.blob",
             "inputs.npy",
@@ -100,6 +111,9 @@ pub fn write_case(case: &str, dir: &Path) -> Result<()> {
     if case == OMG_CASE {
         return write_omg_case(dir);
     }
+    if case == RBF_CASE {
+        return write_rbf_case(dir);
+    }
     let (net, opts) = case_source(case)?;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let npz = dir.join("model.npz");
@@ -127,6 +141,23 @@ fn write_omg_case(dir: &Path) -> Result<()> {
     let blob = crate::demo_omg::int8_blob(&e.omg)?;
     exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
     let x = crate::demo_omg::reference_frames(FRAMES)?;
+    write_frames(dir, &blob, &x, &vec![0f32; x.rows])
+}
+
+fn write_rbf_case(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let d = crate::omg::load_dir(&rbf_case_model())?;
+    let opts = crate::omg::exporter_options(WeightFormat::I8);
+    let blob = crate::omg::export(&d, WeightFormat::I8, &opts)?;
+    exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
+    let first = &d.refs.inputs;
+    let cols = first.dims[2];
+    let rows = FRAMES.min(first.dims[1]);
+    let x = crate::npy::Matrix {
+        rows,
+        cols,
+        data: first.data[..rows * cols].iter().map(|&v| v as f32).collect(),
+    };
     write_frames(dir, &blob, &x, &vec![0f32; x.rows])
 }
 

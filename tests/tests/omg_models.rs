@@ -21,13 +21,40 @@ fn model_dir(name: &str) -> PathBuf {
         .join(name)
 }
 
-/// The committed models the f64 graph and the blobs are checked on. Not
-/// here: `small_rbfcat_r1`, whose RBF layer the exporter's graph has no op
-/// for (`read_omg` refuses RBF-CAT), and `small_fe_r1`, committed with its
-/// float32 references only (no `ref64_*.npy`, to keep `models/omg` small);
-/// `tools/omg/tests/test_models.py` checks both against their PyTorch
-/// references with the NumPy forward pass.
+/// The committed models the f64 graph and the blobs are checked on against
+/// float64 references too. The small models are committed with their
+/// float32 references only (no `ref64_*.npy`, to keep `models/omg` small):
+/// [`small_models_agree_with_their_float32_references`] checks them.
 const MODELS: [&str; 2] = ["tiny_fe_r1", "tiny_fe_r4_frozen"];
+
+/// The small FE and the small RBF-CAT (its clustering layer runs on the
+/// graph's RBF op) against their float32 PyTorch references, and their
+/// int16 / int8 blobs against the f64 forward. Measured 2026-11-30:
+/// f64 vs PyTorch one step 1.4e-6 (RBF-CAT), rollout 1.1e-4 max rel,
+/// 7.6e-6 m; int16 rollout p99 0.16 cm, int8 one-step p99 0.51 cm.
+#[test]
+fn small_models_agree_with_their_float32_references() {
+    let opts = QuantOptions {
+        headroom: HEADROOM,
+        ..QuantOptions::default()
+    };
+    for name in ["small_fe_r1", "small_rbfcat_r1"] {
+        let d = load_dir(&model_dir(name)).unwrap();
+        let a = float_agreement(&d).unwrap();
+        eprintln!("{name}: {a:?}");
+        assert!(a.one_step.max_rel <= 1e-4, "{name}: {:?}", a.one_step);
+        assert!(a.rollout.max_rel <= 2e-3, "{name}: {:?}", a.rollout);
+        assert!(a.rollout.max_joint_m <= 1e-4, "{name}: {:?}", a.rollout);
+        let i16 =
+            fixed_agreement(&d, &export(&d, WeightFormat::I16, &opts).unwrap(), "int16").unwrap();
+        let i8 =
+            fixed_agreement(&d, &export(&d, WeightFormat::I8, &opts).unwrap(), "int8").unwrap();
+        eprintln!("{name}: {i16:?}\n{i8:?}");
+        assert!(i16.one_step.max_joint_m <= 0.001, "{name}: {i16:?}");
+        assert!(i16.rollout.p99_joint_m <= 0.01, "{name}: {i16:?}");
+        assert!(i8.one_step.p99_joint_m <= 0.01, "{name}: {i8:?}");
+    }
+}
 
 #[test]
 fn the_f64_graph_forward_reproduces_the_pytorch_references() {
