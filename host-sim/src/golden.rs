@@ -9,7 +9,7 @@
 //! | `dense-int16` | the same network | dense x3 | int16 |
 //! | `cp-diagonal` | a synthetic 48 -> 40 -> 40 -> 24 network | CP (rank 12), diagonal, CP (rank 6) | int8 |
 //! | `omg-tiny-fe-r1` | the trained tiny FE-OMG model (`models/omg/tiny_fe_r1`, `host-sim demo`'s), 440 -> 404, on its first 64 reference frames | dense x15 (MLPs, 4-expert layers), softmax gate | int8 |
-//! | `omg-small-rbfcat-r1` | the committed small RBF-CAT OMG model (`models/omg/small_rbfcat_r1`), 440 -> 404, on its first 64 reference frames | dense x15, RBF (16 clusters over the 64-wide latent), softmax gate | int8 (RBF centres int16) |
+//! | `omg-small-rbfcat-r1` | the committed small RBF-CAT OMG model (`models/omg/small_rbfcat_r1`), 440 -> 404, on the first 64 frames of its reference rollout | dense x15, RBF (16 clusters over the 64-wide latent), softmax gate | int8 (RBF centres int16) |
 //! | `softmax-graph` | the branching proof model (`synthetic::branching_net`: gating MLP -> softmax; two encoders -> concatenation -> three softmax-gated layers -> decoder on a slice), 40 -> 10 | dense x12, softmax gate | int8 |
 //!
 //! Regenerate them all (after a deliberate change to the arithmetic) with
@@ -49,7 +49,8 @@ pub const CASES: [&str; 6] = [
 pub const OMG_CASE: &str = "omg-tiny-fe-r1";
 
 /// The RBF op's case: a trained RBF-CAT model, read from its committed
-/// directory (so no `model.npz` either), on its first reference frames.
+/// directory (so no `model.npz` either), on the first frames of its
+/// reference rollout.
 pub const RBF_CASE: &str = "omg-small-rbfcat-r1";
 
 /// The committed model directory of [`RBF_CASE`].
@@ -150,13 +151,18 @@ fn write_rbf_case(dir: &Path) -> Result<()> {
     let opts = crate::omg::exporter_options(WeightFormat::I8);
     let blob = crate::omg::export(&d, WeightFormat::I8, &opts)?;
     exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
-    let first = &d.refs.inputs;
+    // The grounded rollout's frames (the model's own inputs, 300 of them):
+    // the reference clip's one-step frames are only 60.
+    let first = &d.refs.rollout;
     let cols = first.dims[2];
     let rows = FRAMES.min(first.dims[1]);
     let x = crate::npy::Matrix {
         rows,
         cols,
-        data: first.data[..rows * cols].iter().map(|&v| v as f32).collect(),
+        data: first.data[..rows * cols]
+            .iter()
+            .map(|&v| v as f32)
+            .collect(),
     };
     write_frames(dir, &blob, &x, &vec![0f32; x.rows])
 }

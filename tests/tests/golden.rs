@@ -51,6 +51,7 @@ fn the_bundles_cover_every_op_kind() {
         "Dense",
         "Cp",
         "Diagonal",
+        "Rbf",
         "Softmax",
         "I8",
         "I8Interleaved",
