@@ -410,41 +410,13 @@ impl ControllerReport {
     /// Issue 4's budgets applied to the controller firmware: the verdict
     /// (printed, not enforced: the controller is an opt-in build).
     pub fn budget_verdict(&self) -> String {
-        let mut over = Vec::new();
-        if self.ram.total() > RAM_BUDGET {
-            over.push(format!(
-                "static RAM + stack {} B > {RAM_BUDGET} B",
-                self.ram.total()
-            ));
-        }
-        if self.flash.text > CONTROLLER_TEXT_BUDGET {
-            over.push(format!(
-                ".text {} B > {CONTROLLER_TEXT_BUDGET} B by {} B",
-                self.flash.text,
-                self.flash.text - CONTROLLER_TEXT_BUDGET
-            ));
-        }
-        if over.is_empty() {
-            "within budget".into()
-        } else {
-            format!("OVER BUDGET: {}", over.join("; "))
-        }
+        super::report::budget_verdict(&self.ram, &self.flash, CONTROLLER_TEXT_BUDGET)
     }
 
     /// The human-readable report.
     pub fn render(&self) -> String {
-        let mut s = String::new();
-        let _ = writeln!(s, "firmware log:");
-        for line in &self.log {
-            let _ = writeln!(s, "  {line}");
-        }
-        let _ = writeln!(
-            s,
-            "model: {} ({} B, {} MACs per frame)",
-            self.model.display(),
-            self.blob_len,
-            self.macs_per_frame
-        );
+        let mut s =
+            super::report::render_head(&self.log, &self.model, self.blob_len, self.macs_per_frame);
         for (i, st) in self.styles.iter().enumerate() {
             let _ = writeln!(
                 s,

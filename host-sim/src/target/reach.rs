@@ -346,40 +346,13 @@ impl ReachReport {
 
     /// `.text` and RAM against their budgets.
     pub fn budget_verdict(&self) -> String {
-        let mut over = Vec::new();
-        if self.ram.total() > RAM_BUDGET {
-            over.push(format!(
-                "static RAM + stack {} B > {RAM_BUDGET} B",
-                self.ram.total()
-            ));
-        }
-        if self.flash.text > REACH_TEXT_BUDGET {
-            over.push(format!(
-                ".text {} B > {REACH_TEXT_BUDGET} B",
-                self.flash.text
-            ));
-        }
-        if over.is_empty() {
-            "within budget".into()
-        } else {
-            format!("OVER BUDGET: {}", over.join("; "))
-        }
+        super::report::budget_verdict(&self.ram, &self.flash, REACH_TEXT_BUDGET)
     }
 
     /// The human-readable report.
     pub fn render(&self) -> String {
-        let mut s = String::new();
-        let _ = writeln!(s, "firmware log:");
-        for line in &self.log {
-            let _ = writeln!(s, "  {line}");
-        }
-        let _ = writeln!(
-            s,
-            "model: {} ({} B, {} MACs per frame)",
-            self.model.display(),
-            self.blob_len,
-            self.macs_per_frame
-        );
+        let mut s =
+            super::report::render_head(&self.log, &self.model, self.blob_len, self.macs_per_frame);
         let _ = writeln!(
             s,
             "reach: script {}, {:?} costs, {} steps of {} values; {} hand targets set, {} refused{}",

@@ -3,7 +3,7 @@
 //! printed report.
 
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{bail, ensure, Result};
@@ -442,4 +442,45 @@ pub(crate) fn memory_use(elf: &ElfInfo, trailer: &wire::Trailer) -> (FlashUse, R
         stack_size: u64::from(trailer.stack_size),
     };
     (flash, ram)
+}
+
+/// The budget verdict of an opt-in firmware build (controller, reach):
+/// its static RAM and stack against [`RAM_BUDGET`], its `.text` against
+/// `text_budget`; printed, not enforced.
+pub fn budget_verdict(ram: &RamUse, flash: &FlashUse, text_budget: u64) -> String {
+    let mut over = Vec::new();
+    if ram.total() > RAM_BUDGET {
+        over.push(format!(
+            "static RAM + stack {} B > {RAM_BUDGET} B",
+            ram.total()
+        ));
+    }
+    if flash.text > text_budget {
+        over.push(format!(
+            ".text {} B > {text_budget} B by {} B",
+            flash.text,
+            flash.text - text_budget
+        ));
+    }
+    if over.is_empty() {
+        "within budget".into()
+    } else {
+        format!("OVER BUDGET: {}", over.join("; "))
+    }
+}
+
+/// The head of a loop report (controller, reach): the firmware log, then
+/// the model line.
+pub fn render_head(log: &[String], model: &Path, blob_len: usize, macs_per_frame: u32) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "firmware log:");
+    for line in log {
+        let _ = writeln!(s, "  {line}");
+    }
+    let _ = writeln!(
+        s,
+        "model: {} ({blob_len} B, {macs_per_frame} MACs per frame)",
+        model.display()
+    );
+    s
 }

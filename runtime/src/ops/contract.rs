@@ -251,6 +251,19 @@ impl Rows {
         }
     }
 
+    /// Every bias at one end of its accumulator's range, at random (the
+    /// worst cases of ops whose bias sums saturate).
+    pub(crate) fn extreme_biases(&mut self, rng: &mut Rng) {
+        for b in &mut self.bias {
+            *b = match (self.shape.acc, rng.chance(50)) {
+                (AccWidth::I32, true) => i32::MAX.into(),
+                (AccWidth::I32, false) => i32::MIN.into(),
+                (AccWidth::I64, true) => i64::MAX,
+                (AccWidth::I64, false) => i64::MIN,
+            };
+        }
+    }
+
     /// Bias of expert `k`, row `i`.
     pub(crate) fn bias(&self, k: usize, i: usize) -> i128 {
         i128::from(self.bias[k * self.shape.out_dim + i])

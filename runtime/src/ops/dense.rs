@@ -801,14 +801,7 @@ pub(crate) mod case {
             }
             let mut case = Dense::random(rng, shape, gating);
             case.w = w;
-            for b in &mut case.rows.bias {
-                *b = match (shape.acc, rng.chance(50)) {
-                    (AccWidth::I32, true) => i32::MAX.into(),
-                    (AccWidth::I32, false) => i32::MIN.into(),
-                    (AccWidth::I64, true) => i64::MAX,
-                    (AccWidth::I64, false) => i64::MIN,
-                };
-            }
+            case.rows.extreme_biases(rng);
             // Inputs that push every row's dot product to its bound, both ways.
             let row0 = case.row(0, 0).to_vec();
             let push = |neg: bool| -> Vec<i16> {

@@ -121,7 +121,7 @@ impl<'a> GatedOp<'a> for DiagLayer<'a> {
 #[cfg(test)]
 pub(crate) mod case {
     use super::DiagLayer;
-    use crate::blob::{AccWidth, Gating, LayerDesc, LayerOp};
+    use crate::blob::{Gating, LayerDesc, LayerOp};
     use crate::error::Error;
     use crate::ops::contract::{
         finish, finish_float, fits, sat, OpCase, Payload, Rng, Rows, Shape,
@@ -204,14 +204,7 @@ pub(crate) mod case {
             let mut case = Diagonal::random(rng, shape, gating);
             let (lo, _) = case.rows.shape.weight_range();
             case.w.iter_mut().for_each(|w| *w = lo as i32);
-            for b in &mut case.rows.bias {
-                *b = match (case.rows.shape.acc, rng.chance(50)) {
-                    (AccWidth::I32, true) => i32::MAX.into(),
-                    (AccWidth::I32, false) => i32::MIN.into(),
-                    (AccWidth::I64, true) => i64::MAX,
-                    (AccWidth::I64, false) => i64::MIN,
-                };
-            }
+            case.rows.extreme_biases(rng);
             let n = case.rows.shape.in_dim;
             let inputs = vec![vec![i16::MIN; n], vec![i16::MAX; n], rng.inputs(n)];
             (case, inputs)

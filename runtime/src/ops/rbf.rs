@@ -217,7 +217,7 @@ impl<'a> GatedOp<'a> for RbfLayer<'a> {
 #[cfg(test)]
 pub(crate) mod case {
     use super::{RbfLayer, MAX_ALIGN};
-    use crate::blob::{AccWidth, Gating, LayerDesc, LayerOp, RbfScale, WeightFormat};
+    use crate::blob::{Gating, LayerDesc, LayerOp, RbfScale, WeightFormat};
     use crate::error::Error;
     use crate::fixed::elu::expm1_neg_q31;
     use crate::ops::contract::{
@@ -397,14 +397,7 @@ pub(crate) mod case {
             case.c.iter_mut().for_each(|c| *c = lo as i32);
             let a = case.widest_align();
             case.align.iter_mut().for_each(|v| *v = a);
-            for b in &mut case.rows.bias {
-                *b = match (case.rows.shape.acc, rng.chance(50)) {
-                    (AccWidth::I32, true) => i32::MAX.into(),
-                    (AccWidth::I32, false) => i32::MIN.into(),
-                    (AccWidth::I64, true) => i64::MAX,
-                    (AccWidth::I64, false) => i64::MIN,
-                };
-            }
+            case.rows.extreme_biases(rng);
             let n = case.rows.shape.in_dim;
             let inputs = vec![vec![i16::MAX; n], vec![i16::MIN; n], rng.inputs(n)];
             (case, inputs)
