@@ -743,7 +743,11 @@ fn load_styles(rt: &mut Rt, styles: &'static [u8]) {
             LayerOp::Dense | LayerOp::Rbf { .. } => info!(
                 "style {=u8}: {=str} adapter {=u16} -> {=u16}, {} weights",
                 id.0,
-                if desc.op == LayerOp::Dense { "full" } else { "RBF" },
+                if desc.op == LayerOp::Dense {
+                    "full"
+                } else {
+                    "RBF"
+                },
                 desc.in_dim,
                 desc.out_dim,
                 desc.weights

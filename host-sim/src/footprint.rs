@@ -47,11 +47,13 @@ pub mod bars {
 /// is TODAY'S MEASURED CEILING (marked so), which keeps it from growing:
 /// lower it to the bar (`bars::*`) in one line once it fits.
 pub const TEXT_BUDGETS: Budgets = Budgets {
-    // CEILING, not the bar (24 KiB): 36,140 B measured 2026-11-30 with the
+    // CEILING, not the bar (24 KiB): 36,140 B measured 2026-11-30 in
+    // /work/main and 36,228 B in a fresh clone at /tmp/fresh-check, with the
     // blob format's parser built for size, the RBF op and the wire's reach
-    // mode (38,456 B before them, 45,576 B and 51,276 B before that), plus
-    // 16 B: the checkout's path moves the code layout by a few bytes.
-    inference_core: 36_156,
+    // mode (38,456 B before them, 45,576 B and 51,276 B before that); the
+    // checkout's path moves the code layout by up to about 100 B, so the
+    // ceiling is the larger figure plus 100 B.
+    inference_core: 36_328,
     // The bar: 47,740 B measured 2026-11-30 (48,980 B before the format
     // crate and the RBF op, 60,408 B before the size profile).
     firmware: bars::FIRMWARE,

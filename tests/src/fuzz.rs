@@ -890,6 +890,11 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
         "softmax-graph.blob".into(),
         golden("softmax-graph/model.blob"),
     ));
+    v.push((
+        "model",
+        "rbf-small.blob".into(),
+        export(&synthetic::rbf_net(5)),
+    ));
     if include_large {
         v.push(("model", "default.blob".into(), golden("default/model.blob")));
         v.push((

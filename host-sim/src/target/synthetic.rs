@@ -284,3 +284,54 @@ pub fn branching_net(seed: u64) -> Net {
         }),
     }
 }
+
+/// A small graph with an RBF node (the clustering layer of OMG's RBF-CAT):
+/// an encoder `6 -> 4`, the RBF layer's 3 clusters over its output, and a
+/// head reading `[psi, z]`; `6 -> 5`. Fuzz seeds and tests that want the
+/// RBF op in a blob of a few hundred bytes.
+pub fn rbf_net(seed: u64) -> Net {
+    use exporter::net::{GateSource, Graph, GraphNode, GraphOp, RbfLayer, Slice, Source, Wiring};
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let dense = |rng: &mut ChaCha8Rng, out: usize, inp: usize| {
+        let sd = 1.3 / (inp as f64).sqrt();
+        NetLayer::Dense(ExpertLayer {
+            w: vec![Array2::from_shape_fn((out, inp), |_| normal(rng) * sd)],
+            b: vec![Array1::from_shape_fn(out, |_| 0.1 * normal(rng))],
+        })
+    };
+    let enc = dense(&mut rng, 4, 6);
+    let rbf = NetLayer::Rbf(RbfLayer {
+        centres: vec![Array2::from_shape_fn((3, 4), |_| normal(&mut rng))],
+        sigma: vec![Array1::from_shape_fn(3, |_| rng.gen_range(0.2..1.0))],
+        b: vec![Array1::zeros(3)],
+    });
+    let head = dense(&mut rng, 5, 7);
+    let s = |source, start: u16, len: u16| Slice { source, start, len };
+    let node = |name: &str, layer: usize, inputs: Vec<Slice>| GraphNode {
+        name: name.to_string(),
+        op: GraphOp::Layer { layer, elu: false },
+        inputs,
+        gate: GateSource::None,
+    };
+    Net {
+        mode: GatingMode::Cubic,
+        xmean: Array1::from_shape_fn(6, |_| normal(&mut rng)),
+        xstd: Array1::from_shape_fn(6, |_| rng.gen_range(0.2..3.0)),
+        ymean: Array1::from_shape_fn(5, |_| normal(&mut rng)),
+        ystd: Array1::from_shape_fn(5, |_| rng.gen_range(0.1..3.0)),
+        layers: vec![enc, rbf, head],
+        wiring: Wiring::Graph(Graph {
+            nodes: vec![
+                node("enc", 0, vec![s(Source::Input, 0, 6)]),
+                node("rbf", 1, vec![s(Source::Node(0), 0, 4)]),
+                node(
+                    "head",
+                    2,
+                    vec![s(Source::Node(1), 0, 3), s(Source::Node(0), 0, 4)],
+                ),
+            ],
+            output: s(Source::Node(2), 0, 5),
+        }),
+    }
+}
+
