@@ -334,4 +334,3 @@ pub fn rbf_net(seed: u64) -> Net {
         }),
     }
 }
-
