@@ -189,7 +189,64 @@ pub fn check_npy_header(bytes: &[u8]) -> Result<()> {
             "the .npy header nests brackets {deepest} deep (at most {MAX_NPY_HEADER_DEPTH} accepted)"
         );
     }
+    check_header_numbers(header)
+}
+
+/// Refuses a header whose integers could overflow npyz's own size
+/// arithmetic, which multiplies the dimensions (and, for the strides, the
+/// trailing ones) unchecked: a panic under debug assertions and a wrapped,
+/// small count in release (found by the `weights` fuzz target, F2).
+/// Conservative on purpose: the product of every nonzero integer in the
+/// header, whatever key it sits under or however the key is spelt, must
+/// fit in 64 bits, and every integer must be written in plain decimal
+/// (NumPy writes nothing else; a literal npyz would read differently, such
+/// as `0x10` or `1_0`, is refused rather than guessed at).
+fn check_header_numbers(header: &[u8]) -> Result<()> {
+    let word = |b: u8| b.is_ascii_alphanumeric() || b == b'_';
+    let mut product: u64 = 1;
+    let mut i = 0usize;
+    while let Some(&b) = header.get(i) {
+        let after_word = i
+            .checked_sub(1)
+            .and_then(|p| header.get(p))
+            .is_some_and(|&p| word(p));
+        if !b.is_ascii_digit() || after_word {
+            i = i.saturating_add(1);
+            continue;
+        }
+        let len = header[i..]
+            .iter()
+            .take_while(|d| d.is_ascii_digit())
+            .count();
+        let end = i.saturating_add(len);
+        let digits = &header[i..end];
+        // Python 2's NumPy wrote long dimensions as `3L`.
+        let next = match header.get(end) {
+            Some(b'L') => end.checked_add(1).and_then(|e| header.get(e)),
+            other => other,
+        };
+        if next.is_some_and(|&n| word(n)) {
+            let token = header[i..].iter().take_while(|&&t| word(t)).count();
+            bail!(
+                "the .npy header holds a number that is not a plain decimal integer: {}",
+                String::from_utf8_lossy(&header[i..i.saturating_add(token)])
+            );
+        }
+        let value = std::str::from_utf8(digits)
+            .ok()
+            .and_then(|d| d.parse::<u64>().ok());
+        product = match value {
+            Some(0) => product,
+            Some(v) => product.checked_mul(v).ok_or_else(overflow)?,
+            None => return Err(overflow()),
+        };
+        i = end;
+    }
     Ok(())
+}
+
+fn overflow() -> anyhow::Error {
+    anyhow!("the .npy header declares sizes whose product overflows 64 bits")
 }
 
 /// Writes float32 arrays to an `.npz` (stored, uncompressed), atomically.
@@ -402,6 +459,48 @@ mod tests {
         assert!(t.elapsed().as_secs() < 5);
         // Plain headers pass.
         check_npy_header(&npy(0)).unwrap();
+    }
+
+    /// F2 of the `weights` fuzz target (`fuzz/README.md`): npyz multiplies
+    /// the declared dimensions unchecked, so this header panicked inside
+    /// `NpyHeader::from_reader` under debug assertions (and wrapped in
+    /// release). It is refused before npyz sees it, whichever way it is
+    /// spelt.
+    #[test]
+    fn shapes_whose_product_overflows_are_refused_before_npyz() {
+        let npy = |shape: &str| {
+            let mut h = format!("{{'descr': '<f4', 'fortran_order': False, {shape}, }}");
+            while (10 + h.len() + 1) % 64 != 0 {
+                h.push(' ');
+            }
+            h.push('\n');
+            let mut b = b"\x93NUMPY\x01\x00".to_vec();
+            b.extend((h.len() as u16).to_le_bytes());
+            b.extend(h.as_bytes());
+            b.extend([0u8; 8]);
+            b
+        };
+        for shape in [
+            "'shape': (4294967296, 4294967296, 16)",
+            "\"shape\": (4294967296, 4294967296, 16)",
+            "'shape': (0, 4294967296, 4294967296)",
+            "'shape': (99999999999999999999999,)",
+            "'shape': (4294967296L, 4294967296L, 16L)",
+        ] {
+            let e = parse_npy(&npy(shape)).err().expect("refused").to_string();
+            assert!(e.contains("overflows 64 bits"), "{shape}: {e}");
+        }
+        for shape in [
+            "'shape': (0x10, 2)",
+            "'shape': (1_0, 2)",
+            "'shape': (2, 1e3)",
+        ] {
+            let e = parse_npy(&npy(shape)).err().expect("refused").to_string();
+            assert!(e.contains("not a plain decimal"), "{shape}: {e}");
+        }
+        // A plain header with its descr's digits passes the check.
+        check_npy_header(&npy("'shape': (2,)")).unwrap();
+        check_npy_header(&npy("'shape': (3L, 4L)")).unwrap();
     }
 
     use super::*;

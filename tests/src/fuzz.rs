@@ -654,15 +654,6 @@ fn write(name: &str, bytes: &[u8]) -> PathBuf {
 /// path, `.npy` matrices and vectors of host-sim).
 pub fn exercise_weights(bytes: &[u8]) -> usize {
     use exporter::net::GatingMode;
-    // Under cargo-fuzz (debug assertions on), skip the known finding that
-    // is being fixed elsewhere, so the run can go past it: an `.npy` shape
-    // whose element count overflows u64 panics inside npyz (`NpyFile::new`,
-    // `read.rs:338`, "attempt to multiply with overflow"; it wraps in
-    // release builds). The stable equivalents still feed such files.
-    #[cfg(fuzzing)]
-    if npy_shape_overflows(bytes) {
-        return 0;
-    }
     let mut ok = 0;
     let name = Path::new("fuzz.npz");
     ok += usize::from(exporter::npz::read_npz_from(Cursor::new(bytes), name).is_ok());
@@ -680,35 +671,6 @@ pub fn exercise_weights(bytes: &[u8]) -> usize {
     ok += usize::from(host_sim::npy::read_matrix_i16(&p).is_ok());
     ok += usize::from(host_sim::npy::read_vector_f32(&p).is_ok());
     ok
-}
-
-/// Whether some `'shape': (a, b, ...)` in `bytes` (an `.npy` header, also
-/// inside a stored `.npz`) has a product of dimensions that overflows u64.
-pub fn npy_shape_overflows(bytes: &[u8]) -> bool {
-    let key = b"'shape'";
-    let mut i = 0;
-    while let Some(k) = bytes[i..].windows(key.len()).position(|w| w == key) {
-        let start = i + k + key.len();
-        let end = bytes[start..]
-            .iter()
-            .position(|&b| b == b')' || b == b'\n')
-            .map_or(bytes.len(), |e| start + e);
-        let mut product: Option<u64> = Some(1);
-        for word in bytes[start..end].split(|b| !b.is_ascii_digit()) {
-            if word.is_empty() {
-                continue;
-            }
-            let dim = std::str::from_utf8(word)
-                .ok()
-                .and_then(|w| w.parse::<u64>().ok());
-            product = product.zip(dim).and_then(|(p, d)| p.checked_mul(d));
-        }
-        if product.is_none() {
-            return true;
-        }
-        i = start;
-    }
-    false
 }
 
 /// The arrays the `configs` target's graph descriptions are read with (the
@@ -866,7 +828,8 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
     let export = |net: &exporter::net::Net| exporter::export::export(net, None, &opts).unwrap().0;
     // Models: the format example (dense, one neuron), a small dense PFNN,
     // a small CP + diagonal network, the golden CP/diagonal and softmax
-    // graph blobs.
+    // graph blobs, a small RBF network; large: the golden dense and OMG
+    // blobs.
     v.push((
         "model",
         "example-v2.blob".into(),
@@ -901,6 +864,11 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
             "model",
             "dense-int16.blob".into(),
             golden("dense-int16/model.blob"),
+        ));
+        v.push((
+            "model",
+            "omg-tiny-fe-r1.blob".into(),
+            golden("omg-tiny-fe-r1/model.blob"),
         ));
     }
     // Styles: the small base followed by a CP, a diagonal and a full
