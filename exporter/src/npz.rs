@@ -425,25 +425,30 @@ pub fn pfnn_to_npz(net: &Net, path: &Path) -> Result<()> {
 #[cfg(test)]
 #[allow(clippy::arithmetic_side_effects)] // test fixtures, not file input
 mod tests {
+    /// A version-1 `.npy` with the header dict `dict` and 8 data bytes.
+    fn npy_with_header(dict: &str) -> Vec<u8> {
+        let mut h = dict.to_owned();
+        while !(10 + h.len() + 1).is_multiple_of(64) {
+            h.push(' ');
+        }
+        h.push('\n');
+        let mut b = b"\x93NUMPY\x01\x00".to_vec();
+        b.extend((h.len() as u16).to_le_bytes());
+        b.extend(h.as_bytes());
+        b.extend([0u8; 8]);
+        b
+    }
+
     /// Found by the `weights` fuzz target (`fuzz/README.md`): an `.npy`
     /// header that nests 14 `{` deep made npyz's header parser run for
     /// minutes (exponential in the depth); it is refused at once.
     #[test]
     fn deeply_nested_npy_headers_are_refused_at_once() {
         let npy = |nest: usize| {
-            let mut h = format!(
+            npy_with_header(&format!(
                 "{{'descr': '<f4', 'fortran_order': {} False, 'shape': (2,), }}",
                 "{".repeat(nest)
-            );
-            while (10 + h.len() + 1) % 64 != 0 {
-                h.push(' ');
-            }
-            h.push('\n');
-            let mut b = b"\x93NUMPY\x01\x00".to_vec();
-            b.extend((h.len() as u16).to_le_bytes());
-            b.extend(h.as_bytes());
-            b.extend([0u8; 8]);
-            b
+            ))
         };
         let t = std::time::Instant::now();
         let e = check_npy_header(&npy(14)).unwrap_err().to_string();
@@ -469,16 +474,9 @@ mod tests {
     #[test]
     fn shapes_whose_product_overflows_are_refused_before_npyz() {
         let npy = |shape: &str| {
-            let mut h = format!("{{'descr': '<f4', 'fortran_order': False, {shape}, }}");
-            while (10 + h.len() + 1) % 64 != 0 {
-                h.push(' ');
-            }
-            h.push('\n');
-            let mut b = b"\x93NUMPY\x01\x00".to_vec();
-            b.extend((h.len() as u16).to_le_bytes());
-            b.extend(h.as_bytes());
-            b.extend([0u8; 8]);
-            b
+            npy_with_header(&format!(
+                "{{'descr': '<f4', 'fortran_order': False, {shape}, }}"
+            ))
         };
         for shape in [
             "'shape': (4294967296, 4294967296, 16)",
