@@ -9,7 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{anyhow, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use exporter::net::omg::{omg_from_bytes, OmgNet};
 use phasegate::blob::WeightFormat;
 
@@ -19,8 +19,7 @@ use crate::render::canvas::{BLUE, ORANGE};
 
 const WEIGHTS: &[u8] = include_bytes!("../../models/omg/tiny_fe_r1/model.safetensors");
 const CONFIG: &str = include_str!("../../models/omg/tiny_fe_r1/config.json");
-const INPUTS: &[u8] = include_bytes!("../../models/omg/tiny_fe_r1/ref_inputs.npy");
-const TARGETS: &[u8] = include_bytes!("../../models/omg/tiny_fe_r1/ref_rollout_targets.npy");
+const REFERENCES: &[u8] = include_bytes!("../../models/omg/tiny_fe_r1/references.npz");
 const RIG: &str = include_str!("../../models/omg/tiny_fe_r1/rig.json");
 
 /// Frames of the demo's clip (5 s at 60 fps).
@@ -28,12 +27,17 @@ pub const FRAMES: usize = 300;
 /// Frames run on the Cortex-M4 under QEMU for the instruction count.
 pub const TARGET_FRAMES: usize = 30;
 
-/// An f32 array from the bytes of an `.npy` file.
-fn npy_f32(bytes: &[u8]) -> Result<(Vec<u64>, Vec<f32>)> {
-    exporter::npz::check_npy_header(bytes)?;
-    let f = npyz::NpyFile::new(bytes)?;
-    let shape = f.shape().to_vec();
-    Ok((shape, f.into_vec::<f32>()?))
+/// Array `name` of the embedded `references.npz`: its shape (3-D) and values.
+fn reference(name: &str) -> Result<([usize; 3], Vec<f64>)> {
+    let path = Path::new("models/omg/tiny_fe_r1/references.npz (embedded)");
+    let mut arrays = exporter::npz::read_npz_from(std::io::Cursor::new(REFERENCES), path)?;
+    let a = arrays
+        .remove(name)
+        .with_context(|| format!("{}: no array {name}", path.display()))?;
+    match a.shape[..] {
+        [c, t, w] => Ok(([c, t, w].map(|d| d as usize), a.data)),
+        _ => bail!("{}: array {name} is not 3-D", path.display()),
+    }
 }
 
 /// The embedded model, its rig's joint parents, the clip's first frame
@@ -52,13 +56,13 @@ pub struct Embedded {
 /// The first `n` frames of the embedded reference inputs (held-out test
 /// clips, clip after clip), f32, as a matrix.
 pub fn reference_frames(n: usize) -> Result<crate::npy::Matrix<f32>> {
-    let (shape, data) = npy_f32(INPUTS)?;
-    let cols = shape[2] as usize;
+    let ([_, _, cols], data) = reference("inputs")?;
     let rows = n.min(data.len() / cols.max(1));
     Ok(crate::npy::Matrix {
         rows,
         cols,
-        data: data[..rows * cols].to_vec(),
+        // Exact: the stored values are float32.
+        data: data[..rows * cols].iter().map(|&v| v as f32).collect(),
     })
 }
 
@@ -73,19 +77,13 @@ pub fn int8_blob(omg: &OmgNet) -> Result<Vec<u8>> {
 pub fn embedded() -> Result<Embedded> {
     let omg = omg_from_bytes(WEIGHTS, CONFIG).context("embedded OMG model")?;
     let parents = crate::omg_rollout::parents_of(RIG.as_bytes()).context("embedded rig.json")?;
-    let (ishape, inputs) = npy_f32(INPUTS)?;
-    let (tshape, targets) = npy_f32(TARGETS)?;
-    let (n, t) = (ishape[2] as usize, tshape[2] as usize);
-    let frames = (tshape[1] as usize).min(FRAMES);
+    let ([_, _, n], inputs) = reference("inputs")?;
+    let ([_, frames, t], targets) = reference("rollout_targets")?;
+    let frames = frames.min(FRAMES);
     Ok(Embedded {
-        first: inputs[..n].iter().map(|&v| f64::from(v)).collect(),
+        first: inputs[..n].to_vec(),
         targets: (0..frames)
-            .map(|f| {
-                targets[f * t..(f + 1) * t]
-                    .iter()
-                    .map(|&v| f64::from(v))
-                    .collect()
-            })
+            .map(|f| targets[f * t..(f + 1) * t].to_vec())
             .collect(),
         omg,
         parents,

@@ -100,7 +100,7 @@ enum Command {
     /// frames to reach, final distance, joint error, roughness, and the
     /// blobs' joint difference to the f64 rollout.
     OmgReach {
-        /// Model directories (model.safetensors, config.json, ref_*.npy).
+        /// Model directories (model.safetensors, config.json, references.npz).
         #[arg(required = true)]
         dirs: Vec<PathBuf>,
         /// The data set `python3 -m tools.omg.generate --out DIR` wrote
@@ -122,7 +122,7 @@ enum Command {
     /// PyTorch references, and int16 / int8 blobs vs the f64 forward, one
     /// step and over the 300-frame grounded rollout.
     OmgAccuracy {
-        /// Model directories (model.safetensors, config.json, ref_*.npy).
+        /// Model directories (model.safetensors, config.json, references.npz).
         #[arg(required = true)]
         dirs: Vec<PathBuf>,
         /// Also write every figure as JSON.

@@ -7,6 +7,7 @@
 //! int8 blobs against the f64 forward, one step and over the 300-frame
 //! grounded rollout (`docs/omg.md`).
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context, Result};
@@ -37,22 +38,31 @@ impl Clips {
         &self.data[(c * self.dims[1] + t) * w..][..w]
     }
 
-    fn read(path: &Path) -> Result<Clips> {
-        let (shape, data) = crate::npy::read_array_f32(path)?;
-        let [c, t, w] = shape[..] else {
-            bail!(
-                "{}: shape {shape:?}, expected (clips, frames, width)",
-                path.display()
-            );
+    /// Array `name` of an `.npz` read from `path`, which must be 3-D.
+    fn take(
+        arrays: &mut BTreeMap<String, exporter::npz::NpArray>,
+        name: &str,
+        path: &Path,
+    ) -> Result<Clips> {
+        let a = arrays
+            .remove(name)
+            .with_context(|| format!("{}: no array {name}", path.display()))?;
+        let dims = match a.shape[..] {
+            [c, t, w] => [c, t, w].map(|d| d as usize),
+            _ => bail!(
+                "{}: array {name} has shape {:?}, expected (clips, frames, width)",
+                path.display(),
+                a.shape
+            ),
         };
-        Ok(Clips {
-            dims: [c, t, w],
-            data: data.into_iter().map(f64::from).collect(),
-        })
+        Ok(Clips { dims, data: a.data })
     }
 }
 
-/// The PyTorch reference outputs committed beside a model (`ref_*.npy`).
+/// The reference arrays committed beside a model (`references.npz`,
+/// written by `tools/omg/train/references.py`): held-out frames and targets,
+/// and PyTorch's outputs for them, computed in float64 from the stored
+/// weights and saved as float32.
 #[derive(Clone, Debug)]
 pub struct References {
     /// Raw test frames (clips, F, n).
@@ -63,10 +73,6 @@ pub struct References {
     pub rollout: Clips,
     /// The target block of every rollout frame (clips, 300, 9K).
     pub targets: Clips,
-    /// The same PyTorch modules run in float64 on the same inputs (stored
-    /// as float32: `ref64_*.npy`, `tools/omg/train/references64.py`), when
-    /// present: one step and the grounded rollouts.
-    pub float64: Option<(Clips, Clips)>,
 }
 
 /// A model directory: the imported model and its references.
@@ -79,52 +85,50 @@ pub struct OmgDir {
     pub refs: References,
 }
 
-/// Reads `config.json`, `model.safetensors` and the `ref_*.npy` of `dir`.
+/// Reads `config.json`, `model.safetensors` and `references.npz` of `dir`.
 pub fn load_dir(dir: &Path) -> Result<OmgDir> {
     let omg = read_omg(&dir.join("model.safetensors"), &dir.join("config.json"))?;
-    let r = |name: &str| Clips::read(&dir.join(format!("{name}.npy")));
-    let mut refs = References {
-        inputs: r("ref_inputs")?,
-        one_step: r("ref_one_step")?,
-        rollout: r("ref_rollout_grounded")?,
-        targets: r("ref_rollout_targets")?,
-        float64: None,
+    let path = dir.join("references.npz");
+    let mut arrays = exporter::npz::read_npz(&path)?;
+    let mut take = |name: &str| Clips::take(&mut arrays, name, &path);
+    let refs = References {
+        inputs: take("inputs")?,
+        one_step: take("one_step")?,
+        rollout: take("rollout_grounded")?,
+        targets: take("rollout_targets")?,
     };
-    let (one64, roll64) = (
-        dir.join("ref64_one_step.npy"),
-        dir.join("ref64_rollout_grounded.npy"),
-    );
-    if one64.is_file() || roll64.is_file() {
-        let (one, roll) = (Clips::read(&one64)?, Clips::read(&roll64)?);
-        for (name, c, want) in [
-            ("ref64_one_step", &one, refs.one_step.dims),
-            ("ref64_rollout_grounded", &roll, refs.rollout.dims),
-        ] {
-            if c.dims != want {
-                bail!(
-                    "{}/{name}.npy: shape {:?}, expected {want:?} (as its float32 twin)",
-                    dir.display(),
-                    c.dims
-                );
-            }
-        }
-        refs.float64 = Some((one, roll));
-    }
     let n = omg.config.model_width;
     let t = omg.config.slice("target").len();
     for (name, c, w) in [
-        ("ref_inputs", &refs.inputs, n),
-        ("ref_one_step", &refs.one_step, n),
-        ("ref_rollout_grounded", &refs.rollout, n),
-        ("ref_rollout_targets", &refs.targets, t),
+        ("inputs", &refs.inputs, n),
+        ("one_step", &refs.one_step, n),
+        ("rollout_grounded", &refs.rollout, n),
+        ("rollout_targets", &refs.targets, t),
     ] {
         if c.dims[2] != w {
             bail!(
-                "{}/{name}.npy: width {}, expected {w}",
-                dir.display(),
+                "{}: array {name} has width {}, expected {w}",
+                path.display(),
                 c.dims[2]
             );
         }
+    }
+    let [clips, frames, _] = refs.inputs.dims;
+    if refs.one_step.dims[..2] != [clips, frames]
+        || refs.rollout.dims[..2] != refs.targets.dims[..2]
+        || refs.targets.dims[0] != clips
+        || frames == 0
+        || refs.rollout.dims[1] == 0
+    {
+        bail!(
+            "{}: arrays of different clip or frame counts: inputs {:?}, one_step {:?}, \
+             rollout_grounded {:?}, rollout_targets {:?}",
+            path.display(),
+            refs.inputs.dims,
+            refs.one_step.dims,
+            refs.rollout.dims,
+            refs.targets.dims
+        );
     }
     Ok(OmgDir {
         dir: dir.to_path_buf(),
@@ -359,16 +363,13 @@ pub fn diff(omg: &OmgNet, a: &[Vec<f64>], b: &[Vec<f64>]) -> Diff {
     d
 }
 
-/// The f64 graph forward against the PyTorch references.
+/// The f64 graph forward against the PyTorch (float64) references.
 #[derive(Clone, Debug, Serialize)]
 pub struct FloatAgreement {
-    /// One step on `ref_inputs` vs `ref_one_step`.
+    /// One step on the reference inputs vs PyTorch's outputs.
     pub one_step: Diff,
-    /// The grounded rollouts vs `ref_rollout_grounded` (all clips' frames).
+    /// The grounded rollouts vs PyTorch's (all clips' frames).
     pub rollout: Diff,
-    /// One step and the rollouts against the float64 PyTorch references,
-    /// when the directory has them.
-    pub float64: Option<(Diff, Diff)>,
 }
 
 fn frames_of(c: &Clips, clip: usize) -> Vec<Vec<f64>> {
@@ -404,16 +405,9 @@ pub fn float_rollouts(d: &OmgDir) -> Result<Vec<Vec<f64>>> {
 pub fn float_agreement(d: &OmgDir) -> Result<FloatAgreement> {
     let y = one_step(d, |x| Ok(d.omg.step(x)))?;
     let ro = float_rollouts(d)?;
-    let float64 = d.refs.float64.as_ref().map(|(one, roll)| {
-        (
-            diff(&d.omg, &y, &all_frames(one)),
-            diff(&d.omg, &ro, &all_frames(roll)),
-        )
-    });
     Ok(FloatAgreement {
         one_step: diff(&d.omg, &y, &all_frames(&d.refs.one_step)),
         rollout: diff(&d.omg, &ro, &all_frames(&d.refs.rollout)),
-        float64,
     })
 }
 
@@ -649,7 +643,7 @@ impl OmgAccuracy {
         let mut s = format!("{}\n", self.dir);
         let f = &self.float;
         s += &format!(
-            "f64 forward vs PyTorch float32: one step ({} frames) max rel {:.2e}, max abs {:.2e}; \
+            "f64 forward vs PyTorch float64: one step ({} frames) max rel {:.2e}, max abs {:.2e}; \
              grounded rollout ({} frames) max rel {:.2e}, max abs {:.2e}, max joint {:.2e} m\n",
             f.one_step.frames,
             f.one_step.max_rel,
@@ -659,16 +653,6 @@ impl OmgAccuracy {
             f.rollout.max_abs,
             f.rollout.max_joint_m
         );
-        match &f.float64 {
-            Some((one, roll)) => {
-                s += &format!(
-                    "f64 forward vs PyTorch float64: one step max rel {:.2e}, max abs {:.2e}; \
-                     grounded rollout max rel {:.2e}, max abs {:.2e}, max joint {:.2e} m\n",
-                    one.max_rel, one.max_abs, roll.max_rel, roll.max_abs, roll.max_joint_m
-                );
-            }
-            None => s += "f64 forward vs PyTorch float64: no ref64_*.npy in the directory\n",
-        }
         s += "blob   bytes   MACs/frame  RAM B | one step vs f64: pos max cm  joint p99 cm  joint max cm | \
               rollout vs f64: joint p99 cm  joint max cm  mean cm\n";
         for x in &self.fixed {

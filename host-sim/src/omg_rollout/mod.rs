@@ -26,7 +26,7 @@ use script::{TargetScript, DEFAULT_FRAMES};
 #[derive(Clone, Debug)]
 pub struct OmgRolloutArgs {
     /// The model directory (`config.json`, `model.safetensors`,
-    /// `rig.json`, the `ref_*.npy`).
+    /// `rig.json`, `references.npz`).
     pub dir: PathBuf,
     /// A blob of the model: run it on the fixed-point runtime.
     pub model: Option<PathBuf>,

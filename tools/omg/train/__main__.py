@@ -23,7 +23,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from safetensors.torch import load_file, save_file  # noqa: E402
+from safetensors.torch import load_file  # noqa: E402
 
 from .core import (  # noqa: E402
     Frame,
@@ -32,12 +32,11 @@ from .core import (  # noqa: E402
     load_rig,
     model_slices,
     norm_stats,
-    one_step,
     pretrain_ae,
-    rollout,
     train_omg,
 )
 from .model import OMG  # noqa: E402
+from .references import save_weights, write_references  # noqa: E402
 
 
 def parse(argv=None):
@@ -64,6 +63,8 @@ def parse(argv=None):
     a.add_argument("--freeze-shared", action="store_true", help="train only the AE ('Frozen' transfer)")
     a.add_argument("--ref-clips", default="0,1", help="test rows for the reference outputs")
     a.add_argument("--ref-one-step-frames", type=int, default=60)
+    a.add_argument("--weights-dtype", default="float32", choices=["float32", "float16"],
+                   help="storage of the layer weights in model.safetensors (normalisation stays float32)")
     a.add_argument("--out", required=True)
     return a.parse_args(argv)
 
@@ -152,7 +153,7 @@ def main(argv=None):
     tensors = model.export_tensors()
     tensors["norm.mean"] = fr.mean.float().contiguous()
     tensors["norm.std"] = fr.std.float().contiguous()
-    save_file(tensors, str(out / "model.safetensors"))
+    save_weights(tensors, out / "model.safetensors", args.weights_dtype)
     cmd = "python3 -m tools.omg.train " + " ".join(sys.argv[1:] if argv is None else argv)
     extra = dict(
         training=dict(
@@ -177,31 +178,29 @@ def main(argv=None):
     )
     cfg = config_dict(model, lay, fr.mean.numpy(), fr.std.numpy(), args.mode, extra)
 
-    # reference outputs: one-step and a grounded (or the model's mode) rollout on test clips
+    cfg["weights_dtype"] = args.weights_dtype
+
+    # reference outputs (tools/omg/train/references.py): the stored weights in float64, on
+    # the first frames of some test clips (one step) and their grounded 300-frame rollouts
     ref_rows = [int(r) for r in args.ref_clips.split(",")]
     clips = torch.from_numpy(sp["test"][ref_rows])
-    nf = args.ref_one_step_frames
-    ref_in = clips[:, :nf]
-    ref_one = one_step(model, fr, ref_in.reshape(-1, clips.shape[-1])).reshape(ref_in.shape)
-    fr_g = Frame(sl, mean, std, lay["key_joint_indices"], lay["joints"], "grounded")
-    ref_roll = rollout(model, fr_g, clips)
-    np.save(out / "ref_inputs.npy", ref_in.numpy().astype(np.float32))
-    np.save(out / "ref_one_step.npy", ref_one.numpy().astype(np.float32))
-    np.save(out / "ref_rollout_targets.npy", clips[:, :, fr.tgt].numpy().astype(np.float32))
-    np.save(out / "ref_rollout_grounded.npy", ref_roll.numpy().astype(np.float32))
+    ref_inputs = clips[:, : args.ref_one_step_frames].numpy()
+    ref_targets = clips[:, :, fr.tgt].numpy()
     cfg["reference"] = dict(
         test_rows=ref_rows,
-        files=dict(
-            ref_inputs="(clips, frames, n) raw test frames 0..F-1 (first frames of the clips)",
-            ref_one_step="(clips, frames, n) raw one-step outputs Y for ref_inputs (float32 PyTorch)",
-            ref_rollout_targets="(clips, 300, 9K) the target block of every frame",
-            ref_rollout_grounded="(clips, 300, n) grounded rollout: frame 0 = ref_inputs[:, 0], "
+        precision="float64",
+        arrays=dict(
+            inputs="(clips, frames, n) raw test frames 0..F-1 (first frames of the clips)",
+            rollout_targets="(clips, 300, 9K) the target block of every frame",
+            one_step="(clips, frames, n) raw one-step outputs Y for inputs",
+            rollout_grounded="(clips, 300, n) grounded rollout: frame 0 = inputs[:, 0], "
             "then the model's outputs with targets overwritten and costs recomputed",
         ),
     )
     cfg["training"]["total_wall_s"] = round(time.time() - t_start, 1)
     (out / "config.json").write_text(json.dumps(cfg, indent=1) + "\n")
     (out / "history.json").write_text(json.dumps(hist) + "\n")
+    write_references(out, ref_inputs, ref_targets)
     log(f"wrote {out} ({time.time() - t_start:.1f} s total)")
 
 

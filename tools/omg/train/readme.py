@@ -56,21 +56,28 @@ def readme(d: Path) -> str:
         "|---|---|---|",
     ]
     desc = {
-        "model.safetensors": "weights (float32) and `norm.mean`/`norm.std`; names and shapes in `tools/omg/omg_np.py`",
+        "model.safetensors": f"layer weights ({c.get('weights_dtype', 'float32')}) and `norm.mean`/`norm.std` (float32);"
+        " names and shapes in `tools/omg/omg_np.py`",
         "config.json": "sizes, slices, out slices, phase-update constant, mode, normalisation, params, MACs, training record",
         "history.json": "per-epoch losses and autoregression probability",
         "train.log": "training log",
+        "rig.json": "the generator's rig description (joints, parents, rest pose), for drawing the skeleton",
+        "references.npz": "reference arrays (compressed, float32), below",
     }
-    desc.update(c.get("reference", {}).get("files", {}))
     for f in files:
         desc_f = desc.get(f, desc.get(f.rsplit(".", 1)[0], ""))
         lines.append(f"| `{f}` | {sizes[f]:,} | {desc_f} |")
     lines += [
         "",
-        f"Reference outputs come from PyTorch (float32) on test rows {c['reference']['test_rows']};"
-        " `tools/omg/tests/test_models.py` checks that the NumPy forward pass reproduces them.",
+        f"`references.npz` holds held-out test rows {c['reference']['test_rows']} and PyTorch's outputs for them,"
+        " computed in float64 from the stored weights (`python3 -m tools.omg.train.references`);"
+        " `tools/omg/tests/test_models.py` checks that the NumPy forward pass reproduces them:",
         "",
+        "| array | content |",
+        "|---|---|",
     ]
+    lines += [f"| `{k}` | {v} |" for k, v in c["reference"]["arrays"].items()]
+    lines += [""]
     return "\n".join(lines)
 
 
