@@ -728,4 +728,74 @@ mod tests {
         assert_eq!(l.key_joints.as_slice(), &[1]);
         assert_eq!(l.width, 41);
     }
+
+    /// Name, shape and values of one array of an `.npz`.
+    type Array = (&'static str, Vec<u64>, Vec<f32>);
+
+    /// A copy of the committed tiny FE whose `references.npz` holds
+    /// `arrays` instead of its own.
+    fn with_references(arrays: &[Array]) -> (tempfile::TempDir, PathBuf) {
+        let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg/tiny_fe_r1");
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("m");
+        std::fs::create_dir(&dir).unwrap();
+        for f in ["config.json", "model.safetensors"] {
+            std::fs::copy(src.join(f), dir.join(f)).unwrap();
+        }
+        exporter::npz::write_npz(&dir.join("references.npz"), arrays).unwrap();
+        (tmp, dir)
+    }
+
+    #[test]
+    fn damaged_references_are_refused_naming_the_file_and_the_array() {
+        let (n, t) = (440u64, 36u64);
+        let a = |c: u64, f: u64, w: u64| vec![0.5f32; (c * f * w) as usize];
+        let good = |name: &'static str| match name {
+            "inputs" | "one_step" => (name, vec![1, 2, n], a(1, 2, n)),
+            "rollout_grounded" => (name, vec![1, 3, n], a(1, 3, n)),
+            _ => (name, vec![1, 3, t], a(1, 3, t)),
+        };
+        let names = ["inputs", "one_step", "rollout_grounded", "rollout_targets"];
+        let all: Vec<_> = names.iter().map(|&k| good(k)).collect();
+        let (_t, dir) = with_references(&all);
+        let d = load_dir(&dir).unwrap();
+        assert_eq!(d.refs.rollout.dims, [1, 3, 440]);
+
+        let cases: [(Vec<Array>, &str); 4] = [
+            (all[..3].to_vec(), "no array rollout_targets"),
+            (
+                vec![
+                    all[0].clone(),
+                    ("one_step", vec![2, n], a(1, 2, n)),
+                    all[2].clone(),
+                    all[3].clone(),
+                ],
+                "array one_step has shape [2, 440], expected (clips, frames, width)",
+            ),
+            (
+                vec![
+                    all[0].clone(),
+                    all[1].clone(),
+                    ("rollout_grounded", vec![1, 3, 7], a(1, 3, 7)),
+                    all[3].clone(),
+                ],
+                "array rollout_grounded has width 7, expected 440",
+            ),
+            (
+                vec![
+                    all[0].clone(),
+                    all[1].clone(),
+                    ("rollout_grounded", vec![1, 4, n], a(1, 4, n)),
+                    all[3].clone(),
+                ],
+                "arrays of different clip or frame counts",
+            ),
+        ];
+        for (arrays, want) in cases {
+            let (_t, dir) = with_references(&arrays);
+            let e = format!("{:#}", load_dir(&dir).err().unwrap());
+            assert!(e.contains("references.npz"), "{e}");
+            assert!(e.contains(want), "{e}");
+        }
+    }
 }
