@@ -5,6 +5,11 @@
 //! 2. validate the model blob flashed on its own at the MODEL region
 //!    (memory.x); a bad or missing blob is refused with the runtime's typed
 //!    error and exit code [`wire::exit::BAD_MODEL`], never a panic;
+//!    With the `rig` feature (the reach build), if the STYLES region starts
+//!    with a rig blob (an OMG rig's autoencoder, bound to the motion blob
+//!    in MODEL by its payload CRC), the two run as one model (`Model::with_rig_regions`); a refused rig
+//!    (built for another motion blob, incompatible, damaged) exits with
+//!    [`wire::exit::BAD_RIG`], and step 3 is skipped;
 //! 3. add every style blob flashed in the STYLES region (blobs back to
 //!    back at 16-byte aligned offsets, up to the first offset without the
 //!    blob magic) to the styled runtime; a refused style (damaged, built
@@ -181,6 +186,7 @@ fn main() -> ! {
         model.blob_len(),
         model.header()
     );
+    let (model, rigged) = with_rig(model, model_region, styles_region);
     let (input_dim, output_dim) = (model.input_dim(), model.output_dim());
     let rt = match init_runtime(model) {
         Ok(rt) => rt,
@@ -200,7 +206,9 @@ fn main() -> ! {
         N,
         rt.model().ram_bytes()
     );
-    load_styles(rt, styles_region);
+    if !rigged {
+        load_styles(rt, styles_region);
+    }
 
     let (input, records) = match wire::InputHeader::parse(hostio) {
         Ok(v) => v,
@@ -689,6 +697,60 @@ fn init_runtime(model: Model<'static>) -> Result<&'static mut Rt, phasegate::Err
     match RUNTIME.init(rt) {
         Some(rt) => Ok(rt),
         None => exit(wire::exit::PANIC),
+    }
+}
+
+/// Without the `rig` feature: the model alone (a rig blob in STYLES is
+/// then refused as a style, `NotAStyle`).
+#[cfg(not(feature = "rig"))]
+fn with_rig(
+    motion: Model<'static>,
+    _motion_region: &'static [u8],
+    _companion: &'static [u8],
+) -> (Model<'static>, bool) {
+    (motion, false)
+}
+
+/// `motion` with the rig blob that starts `companion` (the STYLES region),
+/// if its header says it is one; `true` if so. Exits with
+/// [`wire::exit::BAD_RIG`] when the rig is refused.
+#[cfg(feature = "rig")]
+fn with_rig(
+    motion: Model<'static>,
+    motion_region: &'static [u8],
+    companion: &'static [u8],
+) -> (Model<'static>, bool) {
+    let is_rig = matches!(
+        phasegate::blob::header_from_prefix(companion),
+        Ok(h) if matches!(h.kind, phasegate::blob::ModelKind::Rig { .. })
+    );
+    if !is_rig {
+        return (motion, false);
+    }
+    let addr = companion.as_ptr() as u32;
+    let info = phasegate::blob::blob_len_from_prefix(companion)
+        .and_then(|len| phasegate::RigInfo::from_bytes(companion.get(..len).unwrap_or(companion)));
+    match info.and_then(|info| Ok((Model::with_rig_regions(motion_region, companion)?, info))) {
+        Ok((pair, info)) => {
+            info!(
+                "rig blob at {=u32:#010x}: \"{=str}\", {=usize} bytes, for the motion blob with payload CRC {=u32:#010x}; the pair needs {=usize} B",
+                addr,
+                info.name,
+                info.blob_len,
+                info.base_crc,
+                pair.ram_bytes()
+            );
+            (pair, true)
+        }
+        Err(e) => {
+            error!(
+                "rig blob at {=u32:#010x} refused: {} ({})",
+                addr,
+                e,
+                Display2Format(&e)
+            );
+            exit(wire::exit::BAD_RIG);
+        }
     }
 }
 

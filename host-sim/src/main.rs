@@ -167,6 +167,12 @@ enum Command {
         /// for more (style id = order given).
         #[arg(long = "style", value_name = "FILE")]
         styles: Vec<PathBuf>,
+        /// A rig blob for the model (`exporter omg-rig --base MODEL`),
+        /// flashed at the start of the STYLES region: the firmware runs the
+        /// model (the motion blob) with that rig's autoencoder as one
+        /// model, compared bit for bit with the host runtime's pair.
+        #[arg(long, value_name = "FILE", conflicts_with_all = ["styles", "controller", "reach"])]
+        rig: Option<PathBuf>,
         /// Mix of each frame: `base`, a style id (`0`), `blend:FROM:TO:WEIGHT`,
         /// a comma-separated list repeated over the frames (`ITEM*N` = N
         /// frames), or `cycle[:STEP]` (base, 0, 1, blend 0->1 at weights 0,
@@ -426,6 +432,7 @@ fn run(cli: Cli) -> Result<()> {
             inputs,
             phases,
             styles,
+            rig,
             mix,
             cycles,
             controller,
@@ -481,6 +488,7 @@ fn run(cli: Cli) -> Result<()> {
                 inputs,
                 phases,
                 styles,
+                rig,
                 mix,
                 cycles,
             })?;

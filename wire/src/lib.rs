@@ -961,6 +961,11 @@ pub mod exit {
     /// firmware's frame buffers (`Error::BadLayout`, `TooWide`), or its
     /// first frame is not finite.
     pub const BAD_LAYOUT: i32 = 10;
+    /// The rig blob at the start of the STYLES region was refused: built
+    /// for another motion blob (`Error::RigMismatch`, both payload CRCs),
+    /// not fitting it (`RigIncompatible`), damaged, or too big for the
+    /// firmware's buffers.
+    pub const BAD_RIG: i32 = 11;
 
     /// One line saying what an exit code means.
     pub fn describe(code: i32) -> &'static str {
@@ -976,6 +981,7 @@ pub mod exit {
             NOT_PFNN => "model is not PFNN-shaped: the controller needs 342 inputs and 311 outputs",
             NO_CONTROLLER => "controller mode needs the firmware's `controller` feature",
             BAD_LAYOUT => "reaching layout or first frame refused",
+            BAD_RIG => "rig blob refused",
             _ => "unknown exit code",
         }
     }

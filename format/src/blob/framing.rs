@@ -98,6 +98,13 @@ fn read_header(bytes: &[u8]) -> Result<(Header<NodeTable<'_>>, usize)> {
     Ok((header, header_end.next_multiple_of(PAYLOAD_ALIGN)))
 }
 
+/// The header of the blob that starts `prefix` (preamble and header
+/// checked, CRC included; the payload need not be there yet): what kind
+/// of blob a flash region holds before it is loaded as one.
+pub fn header_from_prefix(prefix: &[u8]) -> Result<Header<NodeTable<'_>>> {
+    read_header(prefix).map(|(header, _)| header)
+}
+
 /// Length of the blob that starts `prefix`, read from its preamble and
 /// header alone (the payload need not be there yet). Lets firmware find
 /// the blob inside a larger flash region.

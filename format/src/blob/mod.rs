@@ -15,7 +15,8 @@ mod header;
 pub mod records;
 
 pub use framing::{
-    blob_len_from_prefix, crc32, Framed, FORMAT_VERSION, MAGIC, PAYLOAD_ALIGN, PREAMBLE_LEN,
+    blob_len_from_prefix, crc32, header_from_prefix, Framed, FORMAT_VERSION, MAGIC, PAYLOAD_ALIGN,
+    PREAMBLE_LEN,
 };
 pub use header::{
     AccWidth, Activation, GateSource, Gating, Header, LayerDesc, LayerOp, ModelKind, Node, NodeOp,

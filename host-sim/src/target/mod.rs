@@ -59,7 +59,7 @@ pub use build::{
 pub use elf::ElfInfo;
 pub use frames::Frames;
 pub use qemu::qemu_available;
-pub use styles::{MixGroup, MixSpec, StyleFile};
+pub use styles::{MixGroup, MixSpec, RigFile, StyleFile};
 
 /// Activation arena of the host runtime, i16 elements (the firmware's is 1,536).
 pub(crate) const HOST_W: usize = 16384;
@@ -82,6 +82,9 @@ pub struct TargetArgs {
     /// Style blobs, packed in this order into the STYLES region (style id =
     /// position).
     pub styles: Vec<PathBuf>,
+    /// A rig blob for the model (a motion blob), flashed at the start of
+    /// the STYLES region instead of styles: the firmware runs the pair.
+    pub rig: Option<PathBuf>,
     /// Per-frame mix schedule (default: [`MixSpec::default_for`] the number
     /// of styles).
     pub mix: Option<MixSpec>,
@@ -91,7 +94,8 @@ pub struct TargetArgs {
 
 pub(crate) use report::{check_calibration, memory_lines, memory_use};
 pub use report::{
-    FlashUse, Mismatch, RamUse, Stats, TargetReport, INSTRUCTIONS_PER_TICK, RAM_BUDGET, TEXT_BUDGET,
+    FlashUse, Mismatch, RamUse, Stats, TargetReport, FIRMWARE, INSTRUCTIONS_PER_TICK, RAM_BUDGET,
+    REACH_FIRMWARE, TEXT_BUDGET,
 };
 pub(crate) use run::time_limit;
 pub use run::{boot, execute, host_outputs, run_target, Booted};

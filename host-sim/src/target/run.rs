@@ -305,8 +305,26 @@ pub(super) fn records_and_trailer<'f>(
 pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
     let blob = exporter::atomic::read_input(&args.model)
         .with_context(|| format!("cannot read the model blob {}", args.model.display()))?;
-    let model = Model::from_bytes(&blob)
-        .with_context(|| format!("{} is not a valid model blob", args.model.display()))?;
+    let rig = match &args.rig {
+        Some(path) => Some(RigFile::read(path)?),
+        None => None,
+    };
+    ensure!(
+        rig.is_none() || args.styles.is_empty(),
+        "a rig blob and style blobs both go to the STYLES region: give one or the other"
+    );
+    let load = || match &rig {
+        Some(r) => Model::with_rig(&blob, &r.bytes).with_context(|| {
+            format!(
+                "{} is not a rig blob for the motion blob {}",
+                r.path.display(),
+                args.model.display()
+            )
+        }),
+        None => Model::from_bytes(&blob)
+            .with_context(|| format!("{} is not a valid model blob", args.model.display())),
+    };
+    let model = load()?;
     let style_files = args
         .styles
         .iter()
@@ -320,7 +338,8 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         args.inputs.as_deref(),
         args.phases.as_deref(),
         args.frames,
-        &blob,
+        // A pair is not the blob alone: never the blob's golden vectors.
+        if rig.is_some() { &[] } else { &blob },
         &model,
     )?;
     frames.mixes = mix.schedule(frames.len());
@@ -333,22 +352,41 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         e.iter().zip(&host_q).filter(|(a, b)| a != b).count() + e.len().abs_diff(host_q.len())
     });
 
-    eprintln!(
-        "building the firmware (cargo build --release in {}) ...",
-        firmware_dir().display()
-    );
-    let elf_path = build_firmware()?;
+    // A rig pair runs on the reach build, the one with the `rig` feature.
+    let (elf_path, build) = if rig.is_some() {
+        eprintln!(
+            "building the reach firmware (cargo build --release --bin reach-firmware --features reach in {}) ...",
+            firmware_dir().display()
+        );
+        (
+            super::build::build_reach_firmware()?,
+            (
+                REACH_FIRMWARE,
+                crate::footprint::TEXT_BUDGETS.reach_firmware,
+            ),
+        )
+    } else {
+        eprintln!(
+            "building the firmware (cargo build --release in {}) ...",
+            firmware_dir().display()
+        );
+        (build_firmware()?, (FIRMWARE, TEXT_BUDGET))
+    };
     let elf = ElfInfo::read(&elf_path)?;
     let image = frames.image(output_dim);
     let input_crc = wire::InputHeader::parse(&image)
         .map(|(h, _)| h.crc)
         .unwrap_or(0);
-    let styles_image = styles::pack_styles(
-        &style_files
-            .iter()
-            .map(|s| s.bytes.clone())
-            .collect::<Vec<_>>(),
-    );
+    // The STYLES region holds the rig blob, or the styles.
+    let styles_image = match &rig {
+        Some(r) => r.bytes.clone(),
+        None => styles::pack_styles(
+            &style_files
+                .iter()
+                .map(|s| s.bytes.clone())
+                .collect::<Vec<_>>(),
+        ),
+    };
     let frame_macs: Vec<u64> = frames
         .mixes
         .iter()
@@ -365,7 +403,7 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         &elf,
         &elf_path,
         Some(&args.model),
-        (!style_files.is_empty()).then_some(&styles_image[..]),
+        (!styles_image.is_empty()).then_some(&styles_image[..]),
         Some(&image),
         time_limit(frames.len(), u32::try_from(max_macs).unwrap_or(u32::MAX)),
         &if args.cycles {
@@ -381,11 +419,7 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
     // A firmware that writes no profile (an older build) just gives no
     // per-stage table.
     let stages = match booted.run.profile_file.as_deref() {
-        Some(file) => {
-            let model = Model::from_bytes(&blob)
-                .with_context(|| format!("{} is not a valid model blob", args.model.display()))?;
-            layers::profile(&model, file, frames.len(), input_crc)?
-        }
+        Some(file) => layers::profile(&load()?, file, frames.len(), input_crc)?,
         None => Vec::new(),
     };
 
@@ -451,6 +485,8 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         stages,
         styles_image: (styles_image.len(), elf.styles.1 - elf.styles.0),
         styles: style_files,
+        rig,
+        build,
         mix,
         mix_groups,
         model_ram_bytes,

@@ -35,6 +35,40 @@ pub fn pack_styles(blobs: &[Vec<u8>]) -> Vec<u8> {
     image
 }
 
+/// A rig blob read from a file (`--rig`): it goes where the styles would,
+/// at the start of the STYLES region.
+#[derive(Clone, Debug)]
+pub struct RigFile {
+    /// Where it came from.
+    pub path: PathBuf,
+    /// Its bytes.
+    pub bytes: Vec<u8>,
+    /// Its name.
+    pub name: String,
+    /// Payload CRC of the motion blob it was built for.
+    pub base_crc: u32,
+    /// Bit `i` set: node `i` is the rig's.
+    pub nodes: u32,
+}
+
+impl RigFile {
+    /// Reads a rig blob and checks its framing (whether it fits the motion
+    /// blob is `Model::with_rig`'s business).
+    pub fn read(path: &Path) -> Result<RigFile> {
+        let bytes = exporter::atomic::read_input(path)
+            .with_context(|| format!("cannot read the rig blob {}", path.display()))?;
+        let info = phasegate::RigInfo::from_bytes(&bytes)
+            .with_context(|| format!("{} is not a rig blob", path.display()))?;
+        Ok(RigFile {
+            path: path.to_path_buf(),
+            name: info.name.to_owned(),
+            base_crc: info.base_crc,
+            nodes: info.nodes,
+            bytes,
+        })
+    }
+}
+
 /// A style blob read from a file, with what the report says about it.
 #[derive(Clone, Debug)]
 pub struct StyleFile {

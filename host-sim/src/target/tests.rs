@@ -340,6 +340,8 @@ fn budgets_bite() {
         per_frame: vec![],
         stages: vec![],
         styles: vec![],
+        rig: None,
+        build: (super::report::FIRMWARE, TEXT_BUDGET),
         styles_image: (0, 0),
         mix: MixSpec::default(),
         mix_groups: vec![],
@@ -1482,6 +1484,7 @@ fn cost_estimate_tracks_qemu() {
             inputs: None,
             phases: None,
             styles: vec![],
+            rig: None,
             mix: None,
             cycles: false,
         })
@@ -1546,4 +1549,107 @@ fn cycle_trace_counts_what_the_firmware_measures() {
         );
         println!("{case}:\n{}", c.render(u64::from(report.macs_per_frame)));
     }
+}
+
+/// Issue 11 item 6: one motion blob (tiny_fe_r1 at int8) in MODEL and a
+/// rig blob in STYLES run as one model on the firmware, bit for bit with
+/// the host runtime's pair, switching rigs between runs (R4, then R1); a
+/// rig built for another motion blob is refused at boot with BAD_RIG and
+/// both CRCs in the log.
+#[test]
+fn motion_blob_with_two_rig_blobs_is_bit_exact_on_the_target() {
+    let name = "motion_blob_with_two_rig_blobs_is_bit_exact_on_the_target";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    use exporter::rig::{export_rig, rig_mask, OMG_RIG_NODES};
+    use phasegate::blob::WeightFormat;
+    let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg");
+    let load = |m: &str| crate::omg::load_dir(&models.join(m)).unwrap();
+    let (r1, r4) = (load("tiny_fe_r1"), load("tiny_fe_r4_frozen"));
+    let opts = crate::omg::exporter_options(WeightFormat::I8);
+    let motion = crate::omg::export(&r1, WeightFormat::I8, &opts).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let motion_path = dir.path().join("motion.blob");
+    std::fs::write(&motion_path, &motion).unwrap();
+    let rig_of = |d: &crate::omg::OmgDir, base: &[u8], rig: &str| {
+        let mask = rig_mask(&d.omg.net, &OMG_RIG_NODES).unwrap();
+        let (bytes, _) = export_rig(&d.omg.net, base, mask, rig, &opts).unwrap();
+        let path = dir.path().join(format!("{rig}.rig"));
+        std::fs::write(&path, bytes).unwrap();
+        path
+    };
+    for (d, rig, dims) in [(&r4, "R4", (356, 404 - 84)), (&r1, "R1", (440, 404))] {
+        let path = rig_of(d, &motion, rig);
+        let report = execute(&TargetArgs {
+            model: motion_path.clone(),
+            rig: Some(path),
+            frames: Some(4),
+            ..TargetArgs::default()
+        })
+        .unwrap();
+        println!("{}", report.render());
+        assert!(report.bit_exact(), "{rig}: {}", report.render());
+        assert_eq!(report.frames, 4);
+        assert_eq!(report.output_dim, dims.1, "{rig}");
+        assert!(
+            report
+                .log
+                .iter()
+                .any(|l| l.contains("rig blob at") && l.contains(rig)),
+            "{rig}: {:?}",
+            report.log
+        );
+        report.check_budgets().unwrap();
+    }
+    // A rig bound to another motion blob (the int16 one).
+    let other = crate::omg::export(
+        &r1,
+        WeightFormat::I16,
+        &crate::omg::exporter_options(WeightFormat::I16),
+    )
+    .unwrap();
+    let stray = rig_of(&r4, &other, "stray");
+    // The reach firmware (the build with rig pairs) refuses it at boot,
+    // naming both CRCs.
+    let elf_path = build_reach_firmware().unwrap();
+    let elf = ElfInfo::read(&elf_path).unwrap();
+    let booted = boot(
+        &elf,
+        &elf_path,
+        Some(&motion_path),
+        Some(&std::fs::read(&stray).unwrap()),
+        None,
+        Duration::from_secs(60),
+    )
+    .unwrap();
+    assert_eq!(
+        booted.run.exit_code,
+        wire::exit::BAD_RIG,
+        "{:?}",
+        booted.log
+    );
+    let last = booted.log.last().cloned().unwrap_or_default();
+    let crc = |b: &[u8]| Model::from_bytes(b).unwrap().header().payload_crc;
+    for e in [
+        "rig blob at 0x".to_string(),
+        "RigMismatch".into(),
+        format!("{:#010x}", crc(&motion)),
+        format!("{:#010x}", crc(&other)),
+    ] {
+        assert!(last.contains(e.as_str()), "{e:?} not in {last}");
+    }
+    // And the host before running anything.
+    let err = execute(&TargetArgs {
+        model: motion_path,
+        rig: Some(stray),
+        frames: Some(1),
+        ..TargetArgs::default()
+    })
+    .unwrap_err();
+    let msg = format!("{err:#}");
+    assert!(
+        msg.contains("is not a rig blob for the motion blob"),
+        "{msg}"
+    );
 }
