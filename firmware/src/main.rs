@@ -4,12 +4,13 @@
 //! 1. paint the free stack, start SysTick, time a calibration loop;
 //! 2. validate the model blob flashed on its own at the MODEL region
 //!    (memory.x); a bad or missing blob is refused with the runtime's typed
-//!    error and exit code [`wire::exit::BAD_MODEL`], never a panic;
-//!    With the `rig` feature (the reach build), if the STYLES region starts
-//!    with a rig blob (an OMG rig's autoencoder, bound to the motion blob
-//!    in MODEL by its payload CRC), the two run as one model (`Model::with_rig_regions`); a refused rig
+//!    error and exit code [`wire::exit::BAD_MODEL`], never a panic. With
+//!    the `rig` feature (the reach build), if the STYLES region starts with
+//!    a rig blob (an OMG rig's autoencoder, bound to the motion blob in
+//!    MODEL by its payload CRC), the two run as one model
+//!    (`Model::with_rig_regions`) and step 3 is skipped; a refused rig
 //!    (built for another motion blob, incompatible, damaged) exits with
-//!    [`wire::exit::BAD_RIG`], and step 3 is skipped;
+//!    [`wire::exit::BAD_RIG`];
 //! 3. add every style blob flashed in the STYLES region (blobs back to
 //!    back at 16-byte aligned offsets, up to the first offset without the
 //!    blob magic) to the styled runtime; a refused style (damaged, built

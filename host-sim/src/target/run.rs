@@ -313,16 +313,19 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         rig.is_none() || args.styles.is_empty(),
         "a rig blob and style blobs both go to the STYLES region: give one or the other"
     );
-    let load = || match &rig {
-        Some(r) => Model::with_rig(&blob, &r.bytes).with_context(|| {
-            format!(
-                "{} is not a rig blob for the motion blob {}",
-                r.path.display(),
-                args.model.display()
-            )
-        }),
-        None => Model::from_bytes(&blob)
-            .with_context(|| format!("{} is not a valid model blob", args.model.display())),
+    let load = || {
+        let alone = Model::from_bytes(&blob)
+            .with_context(|| format!("{} is not a valid model blob", args.model.display()))?;
+        match &rig {
+            Some(r) => Model::with_rig(&blob, &r.bytes).with_context(|| {
+                format!(
+                    "{} is not a rig blob for the motion blob {}",
+                    r.path.display(),
+                    args.model.display()
+                )
+            }),
+            None => Ok(alone),
+        }
     };
     let model = load()?;
     let style_files = args
