@@ -8,7 +8,7 @@
 //!    the `rig` feature (the reach build), if the STYLES region starts with
 //!    a rig blob (an OMG rig's autoencoder, bound to the motion blob in
 //!    MODEL by its payload CRC), the two run as one model
-//!    (`Model::with_rig_regions`) and step 3 is skipped; a refused rig
+//!    (`Model::with_rig_region`) and step 3 is skipped; a refused rig
 //!    (built for another motion blob, incompatible, damaged) exits with
 //!    [`wire::exit::BAD_RIG`];
 //! 3. add every style blob flashed in the STYLES region (blobs back to
@@ -187,7 +187,7 @@ fn main() -> ! {
         model.blob_len(),
         model.header()
     );
-    let (model, rigged) = with_rig(model, model_region, styles_region);
+    let (model, rigged) = with_rig(model, styles_region);
     let (input_dim, output_dim) = (model.input_dim(), model.output_dim());
     let rt = match init_runtime(model) {
         Ok(rt) => rt,
@@ -704,11 +704,7 @@ fn init_runtime(model: Model<'static>) -> Result<&'static mut Rt, phasegate::Err
 /// Without the `rig` feature: the model alone (a rig blob in STYLES is
 /// then refused as a style, `NotAStyle`).
 #[cfg(not(feature = "rig"))]
-fn with_rig(
-    motion: Model<'static>,
-    _motion_region: &'static [u8],
-    _companion: &'static [u8],
-) -> (Model<'static>, bool) {
+fn with_rig(motion: Model<'static>, _companion: &'static [u8]) -> (Model<'static>, bool) {
     (motion, false)
 }
 
@@ -716,11 +712,7 @@ fn with_rig(
 /// if its header says it is one; `true` if so. Exits with
 /// [`wire::exit::BAD_RIG`] when the rig is refused.
 #[cfg(feature = "rig")]
-fn with_rig(
-    motion: Model<'static>,
-    motion_region: &'static [u8],
-    companion: &'static [u8],
-) -> (Model<'static>, bool) {
+fn with_rig(motion: Model<'static>, companion: &'static [u8]) -> (Model<'static>, bool) {
     let is_rig = matches!(
         phasegate::blob::header_from_prefix(companion),
         Ok(h) if matches!(h.kind, phasegate::blob::ModelKind::Rig { .. })
@@ -731,7 +723,7 @@ fn with_rig(
     let addr = companion.as_ptr() as u32;
     let info = phasegate::blob::blob_len_from_prefix(companion)
         .and_then(|len| phasegate::RigInfo::from_bytes(companion.get(..len).unwrap_or(companion)));
-    match info.and_then(|info| Ok((Model::with_rig_regions(motion_region, companion)?, info))) {
+    match info.and_then(|info| Ok((motion.with_rig_region(companion)?, info))) {
         Ok((pair, info)) => {
             info!(
                 "rig blob at {=u32:#010x}: \"{=str}\", {=usize} bytes, for the motion blob with payload CRC {=u32:#010x}; the pair needs {=usize} B",

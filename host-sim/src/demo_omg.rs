@@ -9,11 +9,11 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, Context, Result};
 use exporter::net::omg::{omg_from_bytes, OmgNet};
 use phasegate::blob::WeightFormat;
 
-use crate::omg::{diff, rollout, Diff, FixedOmg, FloatOmg, Mode};
+use crate::omg::{diff, rollout, Clips, Diff, FixedOmg, FloatOmg, Mode};
 use crate::omg_reach::{median, reach_stats, TargetStats};
 use crate::render::canvas::{BLUE, ORANGE};
 
@@ -27,17 +27,15 @@ pub const FRAMES: usize = 300;
 /// Frames run on the Cortex-M4 under QEMU for the instruction count.
 pub const TARGET_FRAMES: usize = 30;
 
-/// Array `name` of the embedded `references.npz`: its shape (3-D) and values.
-fn reference(name: &str) -> Result<([usize; 3], Vec<f64>)> {
+/// The held-out inputs and the rollout targets of the embedded
+/// `references.npz`, (clips, frames, width) each.
+fn references() -> Result<(Clips, Clips)> {
     let path = Path::new("models/omg/tiny_fe_r1/references.npz (embedded)");
     let mut arrays = exporter::npz::read_npz_from(std::io::Cursor::new(REFERENCES), path)?;
-    let a = arrays
-        .remove(name)
-        .with_context(|| format!("{}: no array {name}", path.display()))?;
-    match a.shape[..] {
-        [c, t, w] => Ok(([c, t, w].map(|d| d as usize), a.data)),
-        _ => bail!("{}: array {name} is not 3-D", path.display()),
-    }
+    Ok((
+        Clips::take(&mut arrays, "inputs", path)?,
+        Clips::take(&mut arrays, "rollout_targets", path)?,
+    ))
 }
 
 /// The embedded model, its rig's joint parents, the clip's first frame
@@ -56,7 +54,8 @@ pub struct Embedded {
 /// The first `n` frames of the embedded reference inputs (held-out test
 /// clips, clip after clip), f32, as a matrix.
 pub fn reference_frames(n: usize) -> Result<crate::npy::Matrix<f32>> {
-    let ([_, _, cols], data) = reference("inputs")?;
+    let (Clips { dims, data }, _) = references()?;
+    let cols = dims[2];
     let rows = n.min(data.len() / cols.max(1));
     Ok(crate::npy::Matrix {
         rows,
@@ -77,14 +76,11 @@ pub fn int8_blob(omg: &OmgNet) -> Result<Vec<u8>> {
 pub fn embedded() -> Result<Embedded> {
     let omg = omg_from_bytes(WEIGHTS, CONFIG).context("embedded OMG model")?;
     let parents = crate::omg_rollout::parents_of(RIG.as_bytes()).context("embedded rig.json")?;
-    let ([_, _, n], inputs) = reference("inputs")?;
-    let ([_, frames, t], targets) = reference("rollout_targets")?;
-    let frames = frames.min(FRAMES);
+    let (inputs, targets) = references()?;
+    let frames = targets.dims[1].min(FRAMES);
     Ok(Embedded {
-        first: inputs[..n].to_vec(),
-        targets: (0..frames)
-            .map(|f| targets[f * t..(f + 1) * t].to_vec())
-            .collect(),
+        first: inputs.row(0, 0).to_vec(),
+        targets: (0..frames).map(|f| targets.row(0, f).to_vec()).collect(),
         omg,
         parents,
     })

@@ -39,7 +39,7 @@ impl Clips {
     }
 
     /// Array `name` of an `.npz` read from `path`, which must be 3-D.
-    fn take(
+    pub(crate) fn take(
         arrays: &mut BTreeMap<String, exporter::npz::NpArray>,
         name: &str,
         path: &Path,

@@ -79,7 +79,14 @@ impl<'a> Model<'a> {
     /// Like [`Model::with_rig`], each blob at the start of its own flash
     /// region (bytes after each blob are ignored).
     pub fn with_rig_regions(motion: &'a [u8], rig: &'a [u8]) -> Result<Self> {
-        Self::load_rig(Model::from_region(motion)?, rig, false)
+        Model::from_region(motion)?.with_rig_region(rig)
+    }
+
+    /// This model (a motion blob already loaded) with the rig blob at the
+    /// start of `rig`'s region, as [`Model::with_rig_regions`] gives it,
+    /// without validating the motion blob a second time.
+    pub fn with_rig_region(self, rig: &'a [u8]) -> Result<Self> {
+        Self::load_rig(self, rig, false)
     }
 
     fn load_rig(motion: Model<'a>, rig: &'a [u8], exact: bool) -> Result<Self> {

@@ -197,9 +197,6 @@ pub struct TargetReport {
     pub styles: Vec<StyleFile>,
     /// The rig blob that was flashed (the model is then its motion blob).
     pub rig: Option<super::styles::RigFile>,
-    /// The firmware build that ran (`firmware`, or `reach firmware` for a
-    /// rig pair) and its .text budget.
-    pub build: (&'static str, u64),
     /// Bytes of the STYLES image, and of the STYLES region.
     pub styles_image: (usize, u64),
     /// The mix schedule.
@@ -252,7 +249,20 @@ impl TargetReport {
     }
 
     /// Issue 4's memory budgets: statics plus stack within [`RAM_BUDGET`],
-    /// .text within its build's budget (`build`).
+    /// The firmware build that ran (the reach build for a rig pair: the
+    /// one with the `rig` feature) and its .text budget.
+    pub fn build(&self) -> (&'static str, u64) {
+        if self.rig.is_some() {
+            (
+                REACH_FIRMWARE,
+                crate::footprint::TEXT_BUDGETS.reach_firmware,
+            )
+        } else {
+            (FIRMWARE, TEXT_BUDGET)
+        }
+    }
+
+    /// .text within its build's budget ([`TargetReport::build`]).
     pub fn check_budgets(&self) -> Result<()> {
         let mut failures = Vec::new();
         if self.ram.total() > RAM_BUDGET {
@@ -266,10 +276,11 @@ impl TargetReport {
                 self.ram.stack_high_water
             ));
         }
-        if self.flash.text > self.build.1 {
+        let (build, budget) = self.build();
+        if self.flash.text > budget {
             failures.push(format!(
-                ".text = {} B exceeds the {} B budget of the {}",
-                self.flash.text, self.build.1, self.build.0
+                ".text = {} B exceeds the {budget} B budget of the {build}",
+                self.flash.text
             ));
         }
         if failures.is_empty() {
@@ -434,10 +445,11 @@ impl TargetReport {
             Ok(()) => "ok".to_string(),
             Err(e) => format!("FAILED: {e}"),
         };
-        let which = if self.build.0 == FIRMWARE {
+        let (build, text_budget) = self.build();
+        let which = if build == FIRMWARE {
             String::new()
         } else {
-            format!(" ({})", self.build.0)
+            format!(" ({build})")
         };
         let _ = writeln!(
             s,
@@ -445,7 +457,7 @@ impl TargetReport {
             self.ram.total(),
             RAM_BUDGET,
             self.flash.text,
-            self.build.1
+            text_budget
         );
         let _ = writeln!(s, "QEMU wall time: {:.2} s", self.wall.as_secs_f64());
         s

@@ -356,24 +356,18 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
     });
 
     // A rig pair runs on the reach build, the one with the `rig` feature.
-    let (elf_path, build) = if rig.is_some() {
+    let elf_path = if rig.is_some() {
         eprintln!(
             "building the reach firmware (cargo build --release --bin reach-firmware --features reach in {}) ...",
             firmware_dir().display()
         );
-        (
-            super::build::build_reach_firmware()?,
-            (
-                REACH_FIRMWARE,
-                crate::footprint::TEXT_BUDGETS.reach_firmware,
-            ),
-        )
+        super::build::build_reach_firmware()?
     } else {
         eprintln!(
             "building the firmware (cargo build --release in {}) ...",
             firmware_dir().display()
         );
-        (build_firmware()?, (FIRMWARE, TEXT_BUDGET))
+        build_firmware()?
     };
     let elf = ElfInfo::read(&elf_path)?;
     let image = frames.image(output_dim);
@@ -489,7 +483,6 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         styles_image: (styles_image.len(), elf.styles.1 - elf.styles.0),
         styles: style_files,
         rig,
-        build,
         mix,
         mix_groups,
         model_ram_bytes,

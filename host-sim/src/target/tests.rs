@@ -341,7 +341,6 @@ fn budgets_bite() {
         stages: vec![],
         styles: vec![],
         rig: None,
-        build: (super::report::FIRMWARE, TEXT_BUDGET),
         styles_image: (0, 0),
         mix: MixSpec::default(),
         mix_groups: vec![],

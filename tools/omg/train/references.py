@@ -57,11 +57,14 @@ def storage_tensors(tensors: dict, dtype: str) -> dict:
     }
 
 
-def save_weights(tensors: dict, path: Path, dtype: str) -> None:
-    """Writes ``model.safetensors`` whole or not at all (a temporary file renamed over it)."""
+def save_weights(tensors: dict, path: Path, dtype: str) -> dict:
+    """Writes ``model.safetensors`` whole or not at all (a temporary file renamed over it);
+    returns the tensors as stored."""
+    stored = storage_tensors(tensors, dtype)
     tmp = path.with_name(path.name + ".tmp")
-    save_file(storage_tensors(tensors, dtype), str(tmp))
+    save_file(stored, str(tmp))
     os.replace(tmp, path)
+    return stored
 
 
 def load_model(model_dir: Path) -> tuple[OMG, Frame, dict]:
@@ -140,14 +143,13 @@ def convert_weights(model_dir: Path, dtype: str) -> float:
     largest magnitude of its tensor (per weight, a tiny value flushed to zero says nothing)."""
     path = model_dir / "model.safetensors"
     tensors = load_file(str(path))
-    stored = storage_tensors(tensors, dtype)
+    stored = save_weights(tensors, path, dtype)
     worst = 0.0
     for k, v in tensors.items():
         a, b = v.double(), stored[k].double()
         scale = float(a.abs().max())
         if scale > 0:
             worst = max(worst, float((a - b).abs().max()) / scale)
-    save_weights(tensors, path, dtype)
     cfg_path = model_dir / "config.json"
     cfg = json.loads(cfg_path.read_text())
     cfg["weights_dtype"] = dtype
