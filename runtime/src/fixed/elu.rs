@@ -38,17 +38,34 @@ pub(crate) fn expm1_neg_q31(pos: u64) -> i64 {
 
 /// ELU of `x`, a Q`frac` number, as a Q`frac` number; `frac` must be at
 /// most 15 (so that -1 fits), which the loader checks.
+///
+/// The arithmetic is `expm1_neg_q31`'s interpolation rounded to Q15, then
+/// to Q`frac` (the specified, reference-checked double rounding), done in
+/// 32-bit words: with `u = -x <= 2^15` and `frac <= 15` the table position
+/// `(u << 22) >> frac` splits exactly into the index `(u << 6) >> frac`
+/// and the fraction's low 16 bits, the table's steps are below 2^10 (a
+/// test checks it) so a step times the fraction stays below 2^26, and
+/// `q15 << frac` is at least -2^30. Every output row with an ELU runs it.
 #[inline]
 pub fn elu_q(x: i16, frac: u8) -> i16 {
     if x >= 0 {
         return x;
     }
     let frac = u32::from(frac.min(15));
-    let pos = (u64::from(x.unsigned_abs()) << POS_SHIFT) >> frac;
-    // Rounding the Q31 interpolation to Q15 first, then to Q`frac`, is the
-    // specified (and reference-checked) double rounding: keep both steps.
-    let q15 = super::round_shift(expm1_neg_q31(pos), 16);
-    super::sat_i16(super::round_shift(q15 << frac, 15))
+    let u = u32::from(x.unsigned_abs());
+    let idx = ((u << STEPS_PER_UNIT_LOG2) >> frac) as usize;
+    let t = (u.wrapping_shl(POS_SHIFT - frac) & 0xFFFF) as i32;
+    let q15 = match (ELU_TABLE.get(idx), ELU_TABLE.get(idx.saturating_add(1))) {
+        // `round((a 2^16 + (b - a) t) / 2^16)` is `a + round((b - a) t / 2^16)`.
+        (Some(&a), Some(&b)) if idx < LAST => {
+            let step = (i32::from(b) - i32::from(a)).wrapping_mul(t);
+            i32::from(a) + (step.wrapping_add(1 << 15) >> 16)
+        }
+        // `round(-2^31 / 2^16)`.
+        _ => i32::from(i16::MIN),
+    };
+    let h = (q15 << frac) >> 14;
+    ((h >> 1) + (h & 1)).clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16
 }
 
 #[cfg(test)]
@@ -119,6 +136,16 @@ mod tests {
                     "x {x}, frac {frac}"
                 );
             }
+        }
+    }
+
+    /// What `elu_q`'s 32-bit arithmetic relies on: neighbouring entries
+    /// differ by less than 2^10 (the largest step is about 32768 / 64).
+    #[test]
+    fn table_steps_are_small() {
+        for w in ELU_TABLE.windows(2) {
+            let step = (i32::from(w[1]) - i32::from(w[0])).abs();
+            assert!(step < 1 << 10, "{w:?}");
         }
     }
 

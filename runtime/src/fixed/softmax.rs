@@ -58,6 +58,8 @@ use super::elu::{expm1_neg_q31, POS_SHIFT};
 use crate::error::{Error, Result};
 use core::num::NonZeroU64;
 
+use super::div_short;
+
 /// Most logits a softmax gate takes.
 pub const MAX_LOGITS: usize = 8;
 
@@ -128,7 +130,7 @@ pub fn softmax_q16(logits: &[i16], frac: u8, coefs: &mut [i32]) -> Result<()> {
     for (i, (c, &ei)) in coefs.iter_mut().zip(&e).take(k).enumerate() {
         if i != m {
             // <= 65536 since e_i <= S, so the conversion cannot fail.
-            *c = i32::try_from(((ei << 17) + sum) / two_sum).unwrap_or(ONE);
+            *c = i32::try_from(div_short((ei << 17) + sum, two_sum)).unwrap_or(ONE);
             rest -= *c;
         }
     }

@@ -5,7 +5,7 @@
 use crate::blob::{Activation, LayerDesc, Requant, Section, WeightFormat, REQUANT_RECORD_LEN};
 use crate::error::{Error, Result};
 use crate::fixed::elu::elu_q;
-use crate::fixed::{round_shift, sat_i16, sat_i32};
+use crate::fixed::{round_shift_sat_i16, round_shift_sat_i32};
 
 /// A section lies inside `payload` and starts 4-aligned
 /// (`SectionOutOfBounds { layer }` otherwise).
@@ -70,8 +70,8 @@ pub(crate) fn check_dims(desc: &LayerDesc, layer: u8) -> Result<()> {
 /// requantisation of one output row (both roundings half up).
 #[inline(always)]
 pub fn requantise(total: i64, r: &Requant) -> i16 {
-    let t = i64::from(sat_i32(round_shift(total, r.pre_shift)));
-    sat_i16(round_shift(t * i64::from(r.multiplier), r.post_shift))
+    let t = i64::from(round_shift_sat_i32(total, r.pre_shift));
+    round_shift_sat_i16(t * i64::from(r.multiplier), r.post_shift)
 }
 
 /// The last step of every op's output row: requantise the blended Q16

@@ -28,7 +28,7 @@ use crate::blob::REQUANT_RECORD_LEN;
 use crate::blob::{AccWidth, Gating, LayerDesc, LayerOp, Requant};
 use crate::error::{Error, Result};
 use crate::fixed::gate::{Gate, MAX_ACTIVE, ONE};
-use crate::fixed::{round_shift, sat_i16, sat_i32};
+use crate::fixed::{round_shift, round_shift_sat_i16, round_shift_sat_i32};
 #[cfg(all(feature = "kernel-check", phasegate_dsp))]
 pub use check::cp_check;
 
@@ -86,10 +86,10 @@ impl MidRecord {
     /// `z` of one component from its dot product `t` and blended core `c`.
     #[inline(always)]
     pub fn apply(&self, t: i64, c: i64) -> i16 {
-        let t = i64::from(sat_i32(round_shift(t, self.t_shift)));
+        let t = i64::from(round_shift_sat_i32(t, self.t_shift));
         // |t| <= 2^31 and |c| <= 2^17 (see `CpLayer::middle`): no overflow.
-        let p = i64::from(sat_i32(round_shift(t * c, self.pre_shift)));
-        sat_i16(round_shift(p * i64::from(self.multiplier), self.post_shift))
+        let p = i64::from(round_shift_sat_i32(t * c, self.pre_shift));
+        round_shift_sat_i16(p * i64::from(self.multiplier), self.post_shift)
     }
 }
 
@@ -127,10 +127,10 @@ impl Active {
         a
     }
 
-    /// `acc[j] += sum_k g_k table[first_k + i + j]` for every `j`, expert
-    /// after expert in gate order (an entry outside the table adds 0; the
-    /// loader proved the tables' lengths): a tight loop per expert. Returns
-    /// the multiply-accumulates done ([`crate::mac_count`]).
+    /// `acc[j] = keep * acc[j] + sum_k g_k table[first_k + i + j]` for
+    /// every `j` (an entry outside the table adds 0; the loader proved the
+    /// tables' lengths). Returns the multiply-accumulates done
+    /// ([`crate::mac_count`]).
     /// Wrapping: the callers' bounds keep every sum far below 2^63, so the
     /// order of the additions does not matter.
     #[inline(always)]
@@ -139,14 +139,41 @@ impl Active {
         table: &[[u8; B]],
         i: usize,
         read: fn([u8; B]) -> i32,
+        keep: i64,
         acc: &mut [i64],
     ) -> usize {
+        let entries = |k: usize| {
+            let first = self
+                .first
+                .get(k)
+                .map_or(usize::MAX, |f| f.saturating_add(i));
+            table.get(first..).unwrap_or(&[])
+        };
+        let g = |k: usize| i64::from(self.g.get(k).copied().unwrap_or(0));
+        let (e0, e1, e2, e3) = (entries(0), entries(1), entries(2), entries(3));
+        let rows = acc.len();
+        if self.n == 4 && [e0, e1, e2, e3].iter().all(|e| e.len() >= rows) {
+            // The cubic gate's four experts walked in step, each row's sum
+            // kept in registers (one `LDR` and one `SMLAL` per term),
+            // rather than four passes that load and store every row.
+            let (g0, g1, g2, g3) = (g(0), g(1), g(2), g(3));
+            for ((((a, b0), b1), b2), b3) in acc.iter_mut().zip(e0).zip(e1).zip(e2).zip(e3) {
+                // Each product is below 2^62 (32-bit factors).
+                *a = a
+                    .wrapping_mul(keep)
+                    .wrapping_add(i64::from(read(*b0)) * g0)
+                    .wrapping_add(i64::from(read(*b1)) * g1)
+                    .wrapping_add(i64::from(read(*b2)) * g2)
+                    .wrapping_add(i64::from(read(*b3)) * g3);
+            }
+            return 4 * rows;
+        }
+        acc.iter_mut().for_each(|a| *a = a.wrapping_mul(keep));
         let mut macs = 0;
-        for (&first, &g) in self.first.iter().zip(&self.g).take(self.n) {
-            let entries = table.get(first + i..).unwrap_or(&[]);
-            for (a, b) in acc.iter_mut().zip(entries) {
+        for k in 0..self.n {
+            for (a, b) in acc.iter_mut().zip(entries(k)) {
                 // One `SMLAL`: both factors are 32-bit.
-                *a = a.wrapping_add(i64::from(read(*b)) * i64::from(g));
+                *a = a.wrapping_add(i64::from(read(*b)) * g(k));
                 macs += 1;
             }
         }
@@ -218,10 +245,9 @@ impl<'a> CpLayer<'a> {
             let Some(cs) = blended.get_mut(..ts.len()) else {
                 return;
             };
-            cs.fill(0);
             // The core blend is part of the layer's MACs; the bias blend
             // below is not (as a dense layer's).
-            crate::mac_count::add(active.blend_into(cores, first, core_value, cs));
+            crate::mac_count::add(active.blend_into(cores, first, core_value, 0, cs));
             for (((zr, &t), &c), rec) in zs.iter_mut().zip(ts.iter()).zip(cs.iter()).zip(recs) {
                 let c = round_shift(c, 16);
                 *zr = MidRecord::from_bytes(rec).unwrap_or(none).apply(t, c);
@@ -252,10 +278,7 @@ impl<'a> CpLayer<'a> {
         self.each_chunk(self.a, z, y, |first, totals, ys| {
             let recs = recs.get(first..).unwrap_or(&[]);
             if exact {
-                totals
-                    .iter_mut()
-                    .for_each(|t| *t = t.wrapping_mul(i64::from(ONE)));
-                let _ = active.blend_into(bias32, first, bias32_value, totals);
+                let _ = active.blend_into(bias32, first, bias32_value, ONE.into(), totals);
             } else {
                 for (k, t) in totals.iter_mut().enumerate() {
                     let mut total = t.saturating_mul(i64::from(ONE));

@@ -434,9 +434,16 @@ impl<'a> DenseLayer<'a> {
             if self.desc.acc == AccWidth::I64 {
                 // `|acc| <= in_dim * 2^15 * 2^15`: a row whose biases are
                 // all within `limit` has `|acc + b| <= i64::MAX / sum |g|`,
-                // so no term or partial sum of its blend saturates.
+                // so no term or partial sum of its blend saturates. A shift
+                // by the bits of `sum |g|` (`2^bits > sum |g|`) stands in
+                // for the division: a smaller limit only sends more rows
+                // to the saturating formula, whose bits are the same, and
+                // the M4 build links no 64-bit division routine (`.text`).
                 let acc_bound = u64::from(self.desc.in_dim) << 30;
-                let limit = (i64::MAX as u64 / sum_g.max(1)).saturating_sub(acc_bound);
+                let limit = (i64::MAX as u64)
+                    .checked_shr(u64::BITS - sum_g.leading_zeros())
+                    .unwrap_or(0)
+                    .saturating_sub(acc_bound);
                 return self.run_four::<8>(four, active, limit, x, y);
             }
         }

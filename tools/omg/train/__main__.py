@@ -65,6 +65,9 @@ def parse(argv=None):
     a.add_argument("--ref-one-step-frames", type=int, default=60)
     a.add_argument("--weights-dtype", default="float32", choices=["float32", "float16"],
                    help="storage of the layer weights in model.safetensors (normalisation stays float32)")
+    a.add_argument("--weight-noise", type=float, default=0.0,
+                   help="int8 steps of uniform noise (peak to peak) on every weight matrix in each "
+                   "training step of the OMG stage (0: off); see models/omg/README.md")
     a.add_argument("--out", required=True)
     return a.parse_args(argv)
 

@@ -134,8 +134,43 @@ def one_step_loss(model, clips_n):
         return F.mse_loss(model(x), y).item()
 
 
+def weight_matrices(model: OMG) -> list:
+    """The weight matrices the exporter quantises row by row, each as (tensor, row axis):
+    an ``nn.Linear`` weight (out, in) has a row per output, an expert stack (k, in, out)
+    one per expert and output."""
+    out = []
+    for name, t in model.named_tensors().items():
+        if name.endswith(".w"):
+            out.append((t, 0))
+        elif name.startswith("experts.w"):
+            out.append((t, 1))
+    return out
+
+
+def int8_noise(model: OMG, amount: float, gen) -> list:
+    """Adds to every weight matrix uniform noise of ``amount`` int8 steps peak to peak
+    (a step is a row's largest magnitude / 127, the exporter's per-row scale before its
+    search), in place; returns the noise so that ``remove_noise`` can take it off again.
+    Training through such perturbations asks for rollouts that survive int8 weights."""
+    added = []
+    with torch.no_grad():
+        for w, axis in weight_matrices(model):
+            step = w.abs().amax(dim=axis, keepdim=True) / 127.0
+            n = (torch.rand(w.shape, generator=gen) - 0.5) * amount * step
+            w.add_(n)
+            added.append(n)
+    return added
+
+
+def remove_noise(model: OMG, added: list):
+    with torch.no_grad():
+        for (w, _), n in zip(weight_matrices(model), added):
+            w.sub_(n)
+
+
 def train_omg(model: OMG, fr: Frame, train_n: torch.Tensor, val_n: torch.Tensor, args, gen, log, params=None):
     params = list(params if params is not None else model.parameters())
+    noise = getattr(args, "weight_noise", 0.0)
     opt = torch.optim.AdamW(params, lr=args.lr)
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=args.lr_step, gamma=0.9)
     n_clips = train_n.shape[0]
@@ -152,10 +187,14 @@ def train_omg(model: OMG, fr: Frame, train_n: torch.Tensor, val_n: torch.Tensor,
             y = X[:, 1:].reshape(-1, SEQ_LEN, n)
             xc = x[:, 0]
             for i in range(1, SEQ_LEN):
+                added = int8_noise(model, noise, gen) if noise > 0 else None
                 out = model(xc)
                 loss = F.mse_loss(out, y[:, i - 1]) + model.extra_loss()
                 opt.zero_grad()
                 loss.backward()
+                if added is not None:
+                    # the gradient at the perturbed weights updates the clean ones
+                    remove_noise(model, added)
                 opt.step()
                 sched.step()
                 tot += loss.item()
