@@ -150,22 +150,22 @@ def weight_matrices(model: OMG) -> list:
 def int8_noise(model: OMG, amount: float, gen) -> list:
     """Adds to every weight matrix uniform noise of ``amount`` int8 steps peak to peak
     (a step is a row's largest magnitude / 127, the exporter's per-row scale before its
-    search), in place; returns the noise so that ``remove_noise`` can take it off again.
-    Training through such perturbations asks for rollouts that survive int8 weights."""
-    added = []
+    search), in place; returns the clean weights so that ``remove_noise`` restores them
+    bit for bit. Training through such perturbations asks for rollouts that survive
+    int8 weights."""
+    clean = []
     with torch.no_grad():
         for w, axis in weight_matrices(model):
+            clean.append(w.detach().clone())
             step = w.abs().amax(dim=axis, keepdim=True) / 127.0
-            n = (torch.rand(w.shape, generator=gen) - 0.5) * amount * step
-            w.add_(n)
-            added.append(n)
-    return added
+            w.add_((torch.rand(w.shape, generator=gen) - 0.5) * amount * step)
+    return clean
 
 
-def remove_noise(model: OMG, added: list):
+def remove_noise(model: OMG, clean: list):
     with torch.no_grad():
-        for (w, _), n in zip(weight_matrices(model), added):
-            w.sub_(n)
+        for (w, _), c in zip(weight_matrices(model), clean):
+            w.copy_(c)
 
 
 def train_omg(model: OMG, fr: Frame, train_n: torch.Tensor, val_n: torch.Tensor, args, gen, log, params=None):
