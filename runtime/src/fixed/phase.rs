@@ -36,14 +36,24 @@ impl Phase {
             return Err(Error::NonFinite { index: 0 });
         }
         let turns = radians / TWO_PI;
-        // `as i64` truncates toward zero and saturates; |turns| < 2^63 here.
-        let whole = turns as i64;
-        let mut frac = turns - whole as f32;
+        // The whole turns, truncated toward zero as an i64 conversion would
+        // (and saturated at +-2^63 as it would), without the Cortex-M4's
+        // software float-to-i64 routines: below 2^24 in magnitude the
+        // hardware's i32 conversion is exact, from 2^24 on every f32 is a
+        // whole number already.
+        let whole = if turns.abs() < 16_777_216.0 {
+            (turns as i32) as f32
+        } else {
+            // `i64::MAX as f32` is 2^63, a constant.
+            turns.clamp(-(i64::MAX as f32), i64::MAX as f32)
+        };
+        let mut frac = turns - whole;
         if frac < 0.0 {
             frac += 1.0;
         }
-        let bits = (frac * 4_294_967_296.0) as u64;
-        Ok(Phase::from_bits(bits.min(u64::from(u32::MAX)) as u32))
+        // `as u32` saturates (and gives 0 for a negative value) as the
+        // `as u64` and clamp to u32::MAX it replaces did.
+        Ok(Phase::from_bits((frac * 4_294_967_296.0) as u32))
     }
 
     /// In radians, `[0, 2 pi)`.
@@ -73,6 +83,49 @@ mod tests {
         assert!(Phase::from_radians(f32::NAN).is_err());
         assert!(Phase::from_radians(f32::INFINITY).is_err());
         assert!(Phase::from_radians(1e30).is_ok());
+    }
+
+    /// `from_radians` as it was (`as i64` / `as u64` conversions).
+    fn from_radians_before(radians: f32) -> u32 {
+        let turns = radians / TWO_PI;
+        let whole = turns as i64;
+        let mut frac = turns - whole as f32;
+        if frac < 0.0 {
+            frac += 1.0;
+        }
+        let bits = (frac * 4_294_967_296.0) as u64;
+        bits.min(u64::from(u32::MAX)) as u32
+    }
+
+    /// Same bits as the i64 conversions it replaced: every 97th f32 bit
+    /// pattern (about 44 million values of every sign and exponent) and
+    /// the neighbours of the turn counts where the branches meet.
+    #[test]
+    fn from_radians_matches_the_i64_conversion() {
+        let mut check = |r: f32| {
+            if r.is_finite() {
+                assert_eq!(
+                    Phase::from_radians(r).unwrap().to_bits(),
+                    from_radians_before(r),
+                    "{r:e}"
+                );
+            }
+        };
+        for bits in (0..=u32::MAX).step_by(97) {
+            check(f32::from_bits(bits));
+        }
+        for t in [16_777_216.0f32, 2_147_483_648.0, i64::MAX as f32, 1.0, 0.5] {
+            for sign in [1.0f32, -1.0] {
+                let r = sign * t * TWO_PI;
+                let mut b = r.to_bits().wrapping_sub(64);
+                for _ in 0..128 {
+                    check(f32::from_bits(b));
+                    b = b.wrapping_add(1);
+                }
+            }
+        }
+        check(f32::MAX);
+        check(f32::MIN);
     }
 
     #[test]
