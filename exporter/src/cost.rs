@@ -21,11 +21,14 @@
 //!
 //! Re-measured on 2026-12-01 after the output rows got cheaper (the
 //! requantisation's shifts in 32-bit words, the ELU in 32 bits, the CP
-//! op's four-expert blends in registers; `docs/performance.md`), whole-frame
-//! medians: `tests/golden/default` 283,480 and the real PFNN int8 cubic
-//! 3,386,000 fix [`PER_MAC_I8_INTERLEAVED`] and [`PER_ROW_I8_INTERLEAVED`];
-//! `tests/golden/dense-int16` 282,160 and the real PFNN int16 cubic
-//! 2,722,480 fix [`PER_MAC_I16`] and [`PER_ROW_I16`]. CP layers have their
+//! op's four-expert blends in registers; `docs/performance.md`) and the
+//! input quantiser's float conversion became one `VCVT` (the whole frame
+//! minus the inference of every 342 -> 311 blob went from 38,920 to
+//! 18,440 instructions, which fixes [`PER_IO_VALUE`]), whole-frame
+//! medians: `tests/golden/default` 265,600 and the real PFNN int8 cubic
+//! 3,368,120 fix [`PER_MAC_I8_INTERLEAVED`] and [`PER_ROW_I8_INTERLEAVED`];
+//! `tests/golden/dense-int16` 264,280 and the real PFNN int16 cubic
+//! 2,704,600 fix [`PER_MAC_I16`] and [`PER_ROW_I16`]. CP layers have their
 //! own pair, from the per-node figures of `host-sim target` on the real
 //! PFNN with every layer CP rank 128 (int8): 212,384, 239,872 and 179,052
 //! instructions for 109,824, 131,584 and 105,856 MACs and 512, 512 and 311
@@ -77,17 +80,17 @@ use serde::Serialize;
 
 /// Milli-instructions per multiply-accumulate of an int8 layer in the
 /// interleaved layout (the DSP kernel on the target).
-pub const PER_MAC_I8_INTERLEAVED: u64 = 1_202;
+pub const PER_MAC_I8_INTERLEAVED: u64 = 1_198;
 /// Milli-instructions per output row of an interleaved int8 layer.
-pub const PER_ROW_I8_INTERLEAVED: u64 = 355_200;
+pub const PER_ROW_I8_INTERLEAVED: u64 = 362_900;
 /// Milli-instructions per multiply-accumulate of an int8 layer in the
 /// plain layout (blobs of older exporters, rows under 16 inputs).
 pub const PER_MAC_I8: u64 = 2_347;
 /// Milli-instructions per multiply-accumulate of an int16 layer (the
 /// `SMLALD` kernel on the target).
-pub const PER_MAC_I16: u64 = 884;
+pub const PER_MAC_I16: u64 = 881;
 /// Milli-instructions per output row of an int16 layer.
-pub const PER_ROW_I16: u64 = 426_000;
+pub const PER_ROW_I16: u64 = 433_700;
 /// Milli-instructions per multiply-accumulate of a CP layer (its two factor
 /// products on the dense kernels and the core blend; MACs as the header
 /// counts them, `rank x (in + out + active)`).
@@ -100,7 +103,7 @@ pub const PER_ROW_CP: u64 = 143_900;
 pub const PER_ROW: u64 = 614_000;
 /// Milli-instructions per model input (quantisation) and output
 /// (de-quantisation) value.
-pub const PER_IO_VALUE: u64 = 59_600;
+pub const PER_IO_VALUE: u64 = 28_240;
 /// Milli-instructions per squared difference of an RBF layer (one input
 /// against one centre: 64-bit square, alignment shift and sum; measured on
 /// the tiny RBF-CAT model's 16 x 32 layer: 35,600 instructions).
@@ -198,12 +201,13 @@ mod tests {
     fn estimates_match_the_recorded_measurements() {
         for (case, measured) in [
             // Whole-frame medians of `host-sim target` (2026-12-01, 64
-            // golden frames) after the output rows got cheaper; before
-            // (2026-11-30) 295,480, 290,520, 147,920 and 58,400.
-            ("default", 283_480u64),
-            ("dense-int16", 282_160),
-            ("softmax-graph", 139_240),
-            ("cp-diagonal", 52_000),
+            // golden frames) after the output rows and the input
+            // quantisation got cheaper; before (2026-11-30) 295,480,
+            // 290,520, 147,920 and 58,400.
+            ("default", 265_600u64),
+            ("dense-int16", 264_280),
+            ("softmax-graph", 137_080),
+            ("cp-diagonal", 49_400),
         ] {
             let b = golden(case);
             let e = estimate_instructions(&Model::from_bytes(&b).unwrap());

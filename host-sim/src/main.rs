@@ -225,6 +225,12 @@ enum Command {
         /// With --reach clip:N: the data tools/omg/generate wrote.
         #[arg(long, value_name = "DIR", requires = "reach")]
         data: Option<PathBuf>,
+        /// A speed bar the run must meet (else it fails after its report):
+        /// `per-mac=F` (every layer node at most F instructions per MAC),
+        /// `nodeN-per-mac=F` (node N), `frame=N` (median inference
+        /// instructions per frame); repeat for more. Network runs only.
+        #[arg(long = "bar", value_name = "SPEC", conflicts_with_all = ["controller", "reach"])]
+        bars: Vec<host_sim::target::bars::Bar>,
     },
     /// Code size, static RAM and stack of the inference core, the firmware
     /// and the controller firmware, each against its .text budget.
@@ -442,6 +448,7 @@ fn run(cli: Cli) -> Result<()> {
             omg,
             faithful,
             data,
+            bars,
         } => {
             if let (Some(script), Some(dir)) = (reach, omg) {
                 host_sim::target::reach::run(&host_sim::target::reach::ReachArgs {
@@ -482,7 +489,7 @@ fn run(cli: Cli) -> Result<()> {
                 })?;
                 return Ok(());
             }
-            host_sim::target::run_target(&host_sim::target::TargetArgs {
+            let report = host_sim::target::run_target(&host_sim::target::TargetArgs {
                 model,
                 frames,
                 inputs,
@@ -492,7 +499,7 @@ fn run(cli: Cli) -> Result<()> {
                 mix,
                 cycles,
             })?;
-            Ok(())
+            host_sim::target::bars::check(&bars, &report)
         }
         Command::Footprint { json } => host_sim::footprint::footprint_cmd(json.as_deref()),
         Command::FirmwareSnapshots { overwrite } => {

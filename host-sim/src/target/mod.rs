@@ -30,6 +30,7 @@
 //! snapshots), [`controller`] (controller mode), [`synthetic`] (test
 //! models).
 
+pub mod bars;
 pub mod build;
 pub mod controller;
 pub mod cycles;

@@ -102,7 +102,7 @@ mod tests {
     /// the neighbours of the turn counts where the branches meet.
     #[test]
     fn from_radians_matches_the_i64_conversion() {
-        let mut check = |r: f32| {
+        let check = |r: f32| {
             if r.is_finite() {
                 assert_eq!(
                     Phase::from_radians(r).unwrap().to_bits(),
