@@ -63,13 +63,14 @@
 //!     --weight-bits 8 -o pfnn-int8.blob && cargo run --release -p host-sim -- target --model pfnn-int8.blob
 //! ```
 //!
-//! The two dense int8 PFNN shapes fix [`PER_MAC_I8`] and [`PER_ROW`]
-//! (two equations, two unknowns); the int16 golden blob then fixes
-//! [`PER_MAC_I16`]; whole frame minus inference is 38,920 instructions on
-//! both 342 -> 311 blobs, which fixes [`PER_IO_VALUE`]. CP and diagonal
-//! layers are priced as dense ones (per-layer timings to separate them do
-//! not exist yet): on the cp-diagonal golden blob that overestimates by
-//! 13 %, the safe side for a warning. `host-sim`'s QEMU test
+//! The two dense int8 PFNN shapes fixed [`PER_MAC_I8`] and [`PER_ROW`]
+//! (two equations, two unknowns); the int16 golden blob then fixed
+//! [`PER_MAC_I16`]; whole frame minus inference was then 38,920
+//! instructions on both 342 -> 311 blobs (18,440 since 2026-12-01, above).
+//! Diagonal layers are priced as dense ones; CP layers had no constants of
+//! their own until 2026-12-01 (above), and since then the cp-diagonal
+//! golden blob, whose ranks (12 and 6) are far below the 128 they were
+//! fitted at, is underestimated by about 11 %. `host-sim`'s QEMU test
 //! `cost_estimate_tracks_qemu` keeps the model within [`TOLERANCE_PERCENT`]
 //! of the measured whole frame on the four golden blobs.
 

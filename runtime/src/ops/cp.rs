@@ -150,9 +150,11 @@ impl Active {
             table.get(first..).unwrap_or(&[])
         };
         let g = |k: usize| i64::from(self.g.get(k).copied().unwrap_or(0));
-        let (e0, e1, e2, e3) = (entries(0), entries(1), entries(2), entries(3));
         let rows = acc.len();
-        if self.n == 4 && [e0, e1, e2, e3].iter().all(|e| e.len() >= rows) {
+        let four = (self.n == 4)
+            .then(|| (entries(0), entries(1), entries(2), entries(3)))
+            .filter(|(e0, e1, e2, e3)| [e0, e1, e2, e3].iter().all(|e| e.len() >= rows));
+        if let Some((e0, e1, e2, e3)) = four {
             // The cubic gate's four experts walked in step, each row's sum
             // kept in registers (one `LDR` and one `SMLAL` per term),
             // rather than four passes that load and store every row.
