@@ -63,3 +63,20 @@ pub fn compensation_samples(
         (None, None) => Ok(0),
     }
 }
+
+/// `--calibration-weight`: the share of error-aware rounding's objective
+/// that the recorded rows carry (default
+/// [`DEFAULT_CALIBRATION_WEIGHT`](crate::quantise::DEFAULT_CALIBRATION_WEIGHT));
+/// only with `--calibration`, strictly between 0 and 1.
+pub fn calibration_weight(weight: Option<f64>, has_calibration: bool) -> Result<f64, String> {
+    match weight {
+        None => Ok(crate::quantise::DEFAULT_CALIBRATION_WEIGHT),
+        Some(_) if !has_calibration => {
+            Err("--calibration-weight weighs the --calibration rows: give the file".into())
+        }
+        Some(w) if w > 0.0 && w < 1.0 => Ok(w),
+        Some(w) => Err(format!(
+            "--calibration-weight {w} must be strictly between 0 and 1"
+        )),
+    }
+}

@@ -67,6 +67,11 @@ struct OutputArgs {
     /// of the range calibration and of the error-aware rounding.
     #[arg(long, value_name = "ROLLOUTS.npz")]
     calibration: Option<PathBuf>,
+    /// The share of error-aware rounding's objective that the
+    /// --calibration rows carry, whatever their count (default 0.7;
+    /// docs/fixed-point.md).
+    #[arg(long, value_name = "SHARE")]
+    calibration_weight: Option<f64>,
     /// Spend up to this many extra bytes on int16 weights where they remove
     /// the most output error per byte (whole layers, measured; int8 blobs
     /// only; the report's int16_budget says where it went).
@@ -257,6 +262,9 @@ fn export(
             q.input_range_sigma
         );
     }
+    let calibration_weight =
+        exporter::cli_args::calibration_weight(q.calibration_weight, q.calibration.is_some())
+            .map_err(anyhow::Error::msg)?;
     let calibration_data = q
         .calibration
         .as_deref()
@@ -277,6 +285,7 @@ fn export(
         )
         .map_err(anyhow::Error::msg)?,
         calibration_data,
+        calibration_weight,
         ..QuantOptions::default()
     };
     let (blob, report) = match q.int16_budget {

@@ -65,6 +65,10 @@ pub struct QuantOptions {
     /// so that formats and rounding also fit the inputs a controller feeds.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub calibration_data: Option<Recorded>,
+    /// The share of error-aware rounding's objective that the recorded
+    /// rows carry, whatever their count (the normal samples carry the
+    /// rest; in `(0, 1)`, [`DEFAULT_CALIBRATION_WEIGHT`]).
+    pub calibration_weight: f64,
     /// Graph nodes whose row formats (fraction bits, one per row) are
     /// given instead of calibrated: a rig quantised against a motion
     /// blob's interface formats ([`crate::rig`]).
@@ -77,6 +81,12 @@ pub struct QuantOptions {
 /// the real PFNN, 8,192 gave a pooled output RMS of 0.0914 and 16,384
 /// 0.0891 (docs/fixed-point.md).
 pub const DEFAULT_COMPENSATION_SAMPLES: usize = 16_384;
+
+/// The share of error-aware rounding's objective that recorded rollouts
+/// carry by default (`--calibration-weight`): chosen on the calibration
+/// scripts' own closed-loop rollouts, not on the scripts `host-sim
+/// fidelity` scores (docs/fixed-point.md, "Rounding for the closed loop").
+pub const DEFAULT_CALIBRATION_WEIGHT: f64 = 0.7;
 
 /// Recorded calibration inputs and where they came from.
 #[derive(Clone, Debug)]
@@ -141,6 +151,7 @@ impl Default for QuantOptions {
             layer_weights: BTreeMap::new(),
             compensation_samples: 0,
             calibration_data: None,
+            calibration_weight: DEFAULT_CALIBRATION_WEIGHT,
             row_formats: BTreeMap::new(),
         }
     }
@@ -643,19 +654,36 @@ fn compensated(net: &Net, opts: &QuantOptions, l: usize) -> bool {
 }
 
 /// The inputs error-aware rounding takes its moments from:
-/// `compensation_samples` normal samples, then the recorded rows.
-fn compensation_inputs(net: &Net, opts: &QuantOptions) -> crate::calibrate::Samples {
-    let mut samples = crate::calibrate::normal_inputs(
+/// `compensation_samples` normal samples, then the recorded rows, which
+/// together carry `calibration_weight` of the moments' weight.
+fn compensation_inputs(net: &Net, opts: &QuantOptions) -> moments::WeightedSamples {
+    let mut weighted = moments::WeightedSamples::uniform(crate::calibrate::normal_inputs(
         &net.xmean.to_vec(),
         &net.xstd.to_vec(),
         opts.compensation_samples,
         opts.calibration_scale,
         opts.seed ^ COMPENSATION_SEED,
-    );
+    ));
     if let Some(r) = &opts.calibration_data {
-        samples.extend(&r.samples);
+        weighted.push(
+            &r.samples,
+            recorded_row_weight(
+                opts.calibration_weight,
+                opts.compensation_samples,
+                r.samples.inputs.len(),
+            ),
+        );
     }
-    samples
+    weighted
+}
+
+/// The weight of one of `recorded` rows beside `normal` normal samples of
+/// weight 1, for the recorded rows to carry `share` of the total.
+fn recorded_row_weight(share: f64, normal: usize, recorded: usize) -> f64 {
+    if normal == 0 || recorded == 0 {
+        return 1.0;
+    }
+    share / (1.0 - share) * normal as f64 / recorded as f64
 }
 
 /// Keeps the compensation inputs apart from the calibration inputs.
@@ -838,6 +866,17 @@ mod tests {
         }
         assert!(fixed_multiplier(f64::NAN).is_none());
         assert!(fixed_multiplier(1e12).is_none());
+    }
+
+    #[test]
+    fn recorded_rows_carry_their_share() {
+        for (share, normal, recorded) in [(0.6, 16_384, 14_400), (0.5, 100, 7), (0.1, 5, 500)] {
+            let w = recorded_row_weight(share, normal, recorded);
+            let mass = w * recorded as f64;
+            assert!((mass / (mass + normal as f64) - share).abs() < 1e-12);
+        }
+        // Without normal samples the rows are all there is.
+        assert_eq!(recorded_row_weight(0.6, 0, 10), 1.0);
     }
 
     #[test]

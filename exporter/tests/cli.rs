@@ -674,6 +674,45 @@ fn calibration_rollouts_reach_the_quantiser_and_the_report() {
     );
     assert_eq!(a.len(), b.len(), "same settings, same size");
     assert_ne!(a, b, "the recorded rows changed the rounding");
+    assert_eq!(r["options"]["calibration_weight"], 0.7, "{r}");
+
+    // Their share of the rounding's objective is a knob of its own.
+    let (o, reweighted, report) = export(
+        "reweighted",
+        &[
+            "--calibration",
+            d,
+            "--compensation-samples",
+            "256",
+            "--calibration-weight",
+            "0.2",
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(json(&report)["options"]["calibration_weight"], 0.2);
+    assert_ne!(
+        b,
+        std::fs::read(reweighted).unwrap(),
+        "the share moved the rounding"
+    );
+    for (name, extra) in [
+        (
+            "share-1",
+            vec!["--calibration", d, "--calibration-weight", "1"],
+        ),
+        (
+            "share-nan",
+            vec!["--calibration", d, "--calibration-weight", "NaN"],
+        ),
+        ("share-alone", vec!["--calibration-weight", "0.5"]),
+    ] {
+        let (o, blob, report) = export(name, &extra);
+        assert!(!o.status.success(), "{name}");
+        let e = stderr(&o);
+        assert_eq!(e.trim().lines().count(), 1, "{e}");
+        assert!(e.contains("--calibration-weight"), "{e}");
+        assert!(!blob.exists() && !report.exists());
+    }
 
     // A data set of another model's width is refused in one line naming
     // the file, and nothing is written.

@@ -24,8 +24,26 @@ pub struct Int8Knobs {
     pub compensation_samples: Option<usize>,
     /// Recorded inputs added to the int8 blob's calibration
     /// (exporter --calibration; `host-sim rollout-dataset` writes them).
-    #[arg(long, value_name = "ROLLOUTS.npz")]
+    #[arg(
+        long,
+        value_name = "ROLLOUTS.npz",
+        conflicts_with = "calibration_tours"
+    )]
     pub calibration: Option<PathBuf>,
+    /// Instead of a file: the float controller's rollouts of this many
+    /// random command scripts (600 frames each), recorded in memory; the
+    /// same rows as `host-sim rollout-dataset --tours N --tour-seed S`
+    /// writes, so the blob is the one `exporter --calibration` makes of
+    /// that file (PFNN-shaped models; docs/fixed-point.md).
+    #[arg(long, value_name = "N")]
+    pub calibration_tours: Option<usize>,
+    /// Seed of --calibration-tours.
+    #[arg(long, default_value_t = 1, requires = "calibration_tours")]
+    pub tour_seed: u64,
+    /// The share of error-aware rounding's objective that the
+    /// --calibration rows carry (exporter --calibration-weight).
+    #[arg(long, value_name = "SHARE")]
+    pub calibration_weight: Option<f64>,
     /// Layers of the int8 blob stored with int16 weights instead
     /// (exporter --int16-layers), comma separated.
     #[arg(long, value_delimiter = ',')]
@@ -34,6 +52,35 @@ pub struct Int8Knobs {
     /// (exporter --int16-budget).
     #[arg(long, value_name = "BYTES")]
     pub int16_budget: Option<usize>,
+}
+
+/// Frames of each calibration tour (`rollout-dataset`'s default length).
+pub const TOUR_FRAMES: usize = 600;
+
+/// The float controller's inputs over `n` tours of `seed`, stored the way
+/// `host-sim rollout-dataset` stores them (float32), so that a blob
+/// calibrated in memory is the blob calibrated on that file.
+pub fn tour_rollouts(net: &Net, n: usize, seed: u64) -> Result<Recorded> {
+    if n == 0 {
+        anyhow::bail!("--calibration-tours must be at least 1");
+    }
+    let seconds = TOUR_FRAMES as f64 / crate::rollout::script::FRAME_RATE;
+    let scripts: Vec<_> = (0..n)
+        .map(|i| crate::rollout::tour::tour(seed, i, seconds))
+        .collect();
+    let d = crate::rollout::dataset::collect(net, &scripts, TOUR_FRAMES)?;
+    let f32_round = |v: &f64| f64::from(*v as f32);
+    Ok(Recorded {
+        source: format!("{n} tours of seed {seed}, {TOUR_FRAMES} frames each"),
+        samples: std::sync::Arc::new(exporter::calibrate::Samples {
+            inputs: d
+                .inputs
+                .iter()
+                .map(|x| x.iter().map(f32_round).collect())
+                .collect(),
+            phases: d.phases.iter().map(f32_round).collect(),
+        }),
+    })
 }
 
 impl Int8Knobs {
@@ -55,11 +102,16 @@ impl Int8Knobs {
 
     /// `opts` with these knobs applied.
     pub fn apply(&self, net: &Net, opts: QuantOptions) -> Result<QuantOptions> {
-        let calibration_data = self
-            .calibration
-            .as_deref()
-            .map(|p| Recorded::read(p, net.input_dim()))
-            .transpose()?;
+        let calibration_weight = exporter::cli_args::calibration_weight(
+            self.calibration_weight,
+            self.calibration.is_some() || self.calibration_tours.is_some(),
+        )
+        .map_err(anyhow::Error::msg)?;
+        let calibration_data = match (&self.calibration, self.calibration_tours) {
+            (Some(p), _) => Some(Recorded::read(p, net.input_dim())?),
+            (None, Some(n)) => Some(tour_rollouts(net, n, self.tour_seed)?),
+            (None, None) => None,
+        };
         Ok(QuantOptions {
             compensation_samples: exporter::cli_args::compensation_samples(
                 net,
@@ -68,6 +120,7 @@ impl Int8Knobs {
             )
             .map_err(anyhow::Error::msg)?,
             calibration_data,
+            calibration_weight,
             layer_weights: self
                 .int16_layers
                 .iter()

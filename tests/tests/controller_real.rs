@@ -40,3 +40,58 @@ fn long_rollouts_stay_with_the_float_controller() {
         assert!(s.reference.penetration_max < 0.5, "{}", s.script);
     }
 }
+
+/// Issue 13's closed-loop figures with the int8 blob calibrated on 24
+/// random tours (`--calibration-tours 24`, docs/fixed-point.md, "Rounding
+/// for the closed loop"; the tours share no script with the scored ones).
+///
+/// The issue's bars (worst-frame joint p99 <= 3, final root drift <= 5)
+/// are printed, not asserted: this blob meets them (measured 2026-12-01:
+/// p99 at most 2.28, drift at most 2.47), but of six tour seeds at the
+/// same share four did, and the misses were single events (jog-stop-jog's
+/// stop, p99 3.55 and 5.71), so a small change of the blob can flip the
+/// verdict. What is asserted is the bound all 24 calibrated blobs
+/// measured that day stayed within (p99 5.71, drift 5.77), which the
+/// uncalibrated default misses (crouch-walk p99 10.75, drift 8.29).
+#[test]
+fn tour_calibrated_int8_rollouts_stay_close() {
+    let Some(dir) = pfnn_dir() else { return };
+    let net = load_cubic(&dir).unwrap();
+    let knobs = host_sim::quant_knobs::Int8Knobs {
+        calibration_tours: Some(24),
+        tour_seed: 1,
+        ..Default::default()
+    };
+    let blobs = export_blobs(&net, &knobs).unwrap();
+    let f = measure(&net, &blobs, &[], 600, None).unwrap();
+    println!("{}", f.table());
+    let misses = f.int8_misses();
+    println!(
+        "issue 13's int8 bars: {}",
+        if misses.is_empty() {
+            "met".into()
+        } else {
+            misses.join("; ")
+        }
+    );
+    assert_eq!(f.scripts.len(), 6);
+    for s in &f.scripts {
+        let e = &s.variants[2].errors;
+        assert_eq!(s.variants[2].name, VARIANTS[2]);
+        assert!(
+            e.worst_frame_p99 <= 6.0,
+            "{}: p99 {}",
+            s.script,
+            e.worst_frame_p99
+        );
+        assert!(
+            e.root_drift_final <= 6.0,
+            "{}: drift {}",
+            s.script,
+            e.root_drift_final
+        );
+    }
+    // The issue-3 bars hold for this blob too.
+    let v = f.violations();
+    assert!(v.is_empty(), "fidelity bars missed:\n{}", v.join("\n"));
+}

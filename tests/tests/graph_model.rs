@@ -255,7 +255,12 @@ fn graph_moments_equal_the_per_sample_sums() {
         panic!("a graph")
     };
     let samples = normal_inputs(&net.xmean.to_vec(), &net.xstd.to_vec(), 600, 1.0, 3);
-    let got = graph_moments(&net, g, &samples, |i| i % 2 == 0);
+    let got = graph_moments(
+        &net,
+        g,
+        &exporter::quantise::moments::WeightedSamples::uniform(samples.clone()),
+        |i| i % 2 == 0,
+    );
     let n = samples.inputs.len() as f64;
     let close = |a: f64, b: f64| (a - b).abs() < 1e-9 * (1.0 + b.abs());
     let mut checked = 0;

@@ -1,6 +1,7 @@
 //! `host-sim rollout-dataset`: the network inputs the float controller
 //! feeds a dense PFNN over command scripts, as a data set for
-//! `exporter cp --distill-data`.
+//! `exporter cp --distill-data` and `exporter --calibration` (with
+//! `--tours N`: random scripts, [`super::tour`]).
 //!
 //! The f64 float controller ([`reference_f64`], the same loop as the
 //! device's) runs each script for `--frames` frames from the reset pose;
@@ -39,9 +40,19 @@ pub struct RolloutDatasetArgs {
     #[arg(long, default_value = "cubic")]
     pub gating: GatingMode,
     /// Scripts, comma separated: built-in names (idle, walk, circle-left,
-    /// zigzag, jog-stop-jog, crouch-walk) or JSON script files.
-    #[arg(long, value_delimiter = ',', default_value = DEFAULT_SCRIPTS)]
+    /// zigzag, jog-stop-jog, crouch-walk) or JSON script files (default:
+    /// walk, circle-left, zigzag, jog-stop-jog, crouch-walk, unless
+    /// --tours is given).
+    #[arg(long, value_delimiter = ',')]
     pub scripts: Vec<String>,
+    /// Also (or, without --scripts, only) this many random command
+    /// scripts (`rollout::tour`): calibration data for `exporter
+    /// --calibration` that shares no script with `host-sim fidelity`.
+    #[arg(long, default_value_t = 0)]
+    pub tours: usize,
+    /// Seed of the tours.
+    #[arg(long, default_value_t = 1)]
+    pub tour_seed: u64,
     /// Frames of each script (60 per second).
     #[arg(long, default_value_t = 600)]
     pub frames: usize,
@@ -129,14 +140,17 @@ pub fn rollout_dataset_cmd(args: &RolloutDatasetArgs) -> Result<()> {
     if args.frames == 0 {
         bail!("--frames must be at least 1");
     }
-    if args.scripts.is_empty() {
-        bail!("--scripts names no script");
-    }
-    let scripts = args
-        .scripts
-        .iter()
-        .map(|s| Script::load(s))
+    let named: Vec<&str> = if args.scripts.is_empty() && args.tours == 0 {
+        DEFAULT_SCRIPTS.split(',').collect()
+    } else {
+        args.scripts.iter().map(String::as_str).collect()
+    };
+    let mut scripts = named
+        .into_iter()
+        .map(Script::load)
         .collect::<Result<Vec<_>>>()?;
+    let seconds = args.frames as f64 / super::script::FRAME_RATE;
+    scripts.extend((0..args.tours).map(|i| super::tour::tour(args.tour_seed, i, seconds)));
     let net = load_reference(&args.pfnn, args.gating)?;
     if net.input_dim() != phasegate_controller::layout::INPUTS
         || net.output_dim() != phasegate_controller::layout::OUTPUTS

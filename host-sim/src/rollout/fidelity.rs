@@ -178,6 +178,13 @@ pub fn joint_bar(f32_worst_frame_p99: f64) -> f64 {
     (3.0 * f32_worst_frame_p99).max(2.0)
 }
 
+/// Issue 13's closed-loop bar for the int8 blob: worst-frame joint p99
+/// against the f64 controller, units.
+pub const INT8_JOINT_BAR: f64 = 3.0;
+
+/// Issue 13's bar on the int8 blob's root drift at the last frame, units.
+pub const INT8_DRIFT_BAR: f64 = 5.0;
+
 /// Phase bar for the int16 blob: `max(0.05 rad, 3 x f32's figure)`.
 pub fn phase_bar(f32_phase_error_max: f64) -> f64 {
     (3.0 * f32_phase_error_max).max(0.05)
@@ -228,6 +235,32 @@ impl Fidelity {
                         ));
                     }
                 }
+            }
+        }
+        v
+    }
+
+    /// Issue 13's closed-loop bars that the int8 blob misses, in words
+    /// (empty when both hold on every script).
+    pub fn int8_misses(&self) -> Vec<String> {
+        let mut v = Vec::new();
+        for s in &self.scripts {
+            let Some(i8r) = s.variants.iter().find(|x| x.name == VARIANTS[2]) else {
+                v.push(format!("{}: no int8 controller", s.script));
+                continue;
+            };
+            let e = &i8r.errors;
+            if e.worst_frame_p99 > INT8_JOINT_BAR {
+                v.push(format!(
+                    "{}: int8 worst-frame joint p99 {:.2} > {INT8_JOINT_BAR}",
+                    s.script, e.worst_frame_p99
+                ));
+            }
+            if e.root_drift_final > INT8_DRIFT_BAR {
+                v.push(format!(
+                    "{}: int8 final root drift {:.2} > {INT8_DRIFT_BAR}",
+                    s.script, e.root_drift_final
+                ));
             }
         }
         v
@@ -339,6 +372,21 @@ pub fn fidelity_cmd(args: &FidelityArgs) -> Result<()> {
     print!("{}", f.table());
     if let Some(p) = &args.json {
         exporter::atomic::write_atomic(p, &serde_json::to_vec_pretty(&f)?)?;
+    }
+    // Issue 13's int8 bars are reported, not enforced: the default int8
+    // blob misses them, and calibrated on random tours they hold for some
+    // tour seeds and not others (docs/fixed-point.md, "Rounding for the
+    // closed loop").
+    let misses = f.int8_misses();
+    if misses.is_empty() {
+        println!(
+            "int8 closed-loop bars (worst-frame joint p99 <= {INT8_JOINT_BAR}, final root drift <= {INT8_DRIFT_BAR}): met on every script"
+        );
+    } else {
+        println!(
+            "int8 closed-loop bars missed (docs/fixed-point.md, \"Rounding for the closed loop\"):\n  {}",
+            misses.join("\n  ")
+        );
     }
     let v = f.violations();
     if v.is_empty() {

@@ -7,6 +7,7 @@ pub mod fidelity;
 pub mod metrics;
 pub mod record;
 pub mod script;
+pub mod tour;
 
 use anyhow::{anyhow, bail, Context, Result};
 use exporter::net::{GatingMode, Net};
