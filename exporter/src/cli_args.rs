@@ -67,13 +67,22 @@ pub fn compensation_samples(
 /// `--calibration-weight`: the share of error-aware rounding's objective
 /// that the recorded rows carry (default
 /// [`DEFAULT_CALIBRATION_WEIGHT`](crate::quantise::DEFAULT_CALIBRATION_WEIGHT));
-/// only with `--calibration`, strictly between 0 and 1.
-pub fn calibration_weight(weight: Option<f64>, has_calibration: bool) -> Result<f64, String> {
+/// only with `--calibration` and error-aware rounding (`compensation_samples`
+/// above 0), strictly between 0 and 1.
+pub fn calibration_weight(
+    weight: Option<f64>,
+    has_calibration: bool,
+    compensation_samples: usize,
+) -> Result<f64, String> {
     match weight {
         None => Ok(crate::quantise::DEFAULT_CALIBRATION_WEIGHT),
         Some(_) if !has_calibration => {
             Err("--calibration-weight weighs the --calibration rows: give the file".into())
         }
+        Some(_) if compensation_samples == 0 => Err(
+            "--calibration-weight weighs error-aware rounding, which is off (--rounding nearest)"
+                .into(),
+        ),
         Some(w) if w > 0.0 && w < 1.0 => Ok(w),
         Some(w) => Err(format!(
             "--calibration-weight {w} must be strictly between 0 and 1"

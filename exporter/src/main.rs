@@ -58,7 +58,8 @@ struct OutputArgs {
     #[arg(long, value_enum)]
     rounding: Option<RoundingArg>,
     /// Calibration inputs of compensated rounding (default 16384, drawn
-    /// from the normalisation statistics; --calibration rows come on top);
+    /// from the normalisation statistics; --calibration rows come on top,
+    /// weighted by --calibration-weight);
     /// on `graph` and `omg`, a count above 0 turns compensated rounding on.
     #[arg(long)]
     compensation_samples: Option<usize>,
@@ -262,9 +263,6 @@ fn export(
             q.input_range_sigma
         );
     }
-    let calibration_weight =
-        exporter::cli_args::calibration_weight(q.calibration_weight, q.calibration.is_some())
-            .map_err(anyhow::Error::msg)?;
     let calibration_data = q
         .calibration
         .as_deref()
@@ -274,16 +272,20 @@ fn export(
     if !(headroom.is_finite() && headroom >= 1.0) {
         bail!("--headroom {headroom} must be at least 1");
     }
+    let compensation_samples =
+        exporter::cli_args::compensation_samples(net, q.rounding, q.compensation_samples)
+            .map_err(anyhow::Error::msg)?;
+    let calibration_weight = exporter::cli_args::calibration_weight(
+        q.calibration_weight,
+        q.calibration.is_some(),
+        compensation_samples,
+    )
+    .map_err(anyhow::Error::msg)?;
     let opts = QuantOptions {
         weights,
         headroom,
         input_range_sigma: q.input_range_sigma,
-        compensation_samples: exporter::cli_args::compensation_samples(
-            net,
-            q.rounding,
-            q.compensation_samples,
-        )
-        .map_err(anyhow::Error::msg)?,
+        compensation_samples,
         calibration_data,
         calibration_weight,
         ..QuantOptions::default()

@@ -705,6 +705,17 @@ fn calibration_rollouts_reach_the_quantiser_and_the_report() {
             vec!["--calibration", d, "--calibration-weight", "NaN"],
         ),
         ("share-alone", vec!["--calibration-weight", "0.5"]),
+        (
+            "share-nearest",
+            vec![
+                "--calibration",
+                d,
+                "--rounding",
+                "nearest",
+                "--calibration-weight",
+                "0.5",
+            ],
+        ),
     ] {
         let (o, blob, report) = export(name, &extra);
         assert!(!o.status.success(), "{name}");

@@ -102,9 +102,13 @@ impl Int8Knobs {
 
     /// `opts` with these knobs applied.
     pub fn apply(&self, net: &Net, opts: QuantOptions) -> Result<QuantOptions> {
+        let compensation_samples =
+            exporter::cli_args::compensation_samples(net, self.rounding, self.compensation_samples)
+                .map_err(anyhow::Error::msg)?;
         let calibration_weight = exporter::cli_args::calibration_weight(
             self.calibration_weight,
             self.calibration.is_some() || self.calibration_tours.is_some(),
+            compensation_samples,
         )
         .map_err(anyhow::Error::msg)?;
         let calibration_data = match (&self.calibration, self.calibration_tours) {
@@ -113,12 +117,7 @@ impl Int8Knobs {
             (None, None) => None,
         };
         Ok(QuantOptions {
-            compensation_samples: exporter::cli_args::compensation_samples(
-                net,
-                self.rounding,
-                self.compensation_samples,
-            )
-            .map_err(anyhow::Error::msg)?,
+            compensation_samples,
             calibration_data,
             calibration_weight,
             layer_weights: self
