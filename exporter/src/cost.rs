@@ -109,6 +109,13 @@ pub const PER_IO_VALUE: u64 = 28_240;
 /// against one centre: 64-bit square, alignment shift and sum; measured on
 /// the tiny RBF-CAT model's 16 x 32 layer: 35,600 instructions).
 pub const PER_MAC_RBF: u64 = 55_000;
+/// Milli-instructions per output row of a DEC layer: the row tail and the
+/// soft assignment's two 64-bit software divisions (`t` and `q`). Its
+/// squared differences cost the RBF op's (the same loop). Measured on a
+/// synthetic 16 x 32 layer on the reach firmware (2026-12-01, median of 8
+/// frames): 56,520 instructions per frame against 39,080 for the same
+/// graph with an RBF node, 1,090 more per row.
+pub const PER_ROW_DEC: u64 = 1_704_000;
 /// Milli-instructions per graph node and frame: decoding its record
 /// (built for size, firmware/Cargo.toml), gathering its input slices,
 /// binding its sections.
@@ -117,11 +124,12 @@ pub const PER_NODE: u64 = 2_000_000;
 /// blobs' whole frame, percent (checked by host-sim's QEMU test).
 pub const TOLERANCE_PERCENT: u64 = 15;
 
-/// Milli-instructions per MAC and per output row of a layer: CP and RBF
-/// their own, diagonal as dense (see the module docs).
+/// Milli-instructions per MAC and per output row of a layer: CP, RBF and
+/// DEC their own, diagonal as dense (see the module docs).
 fn per_mac_and_row(d: &LayerDesc) -> (u64, u64) {
     match d.op {
         LayerOp::Rbf { .. } => return (PER_MAC_RBF, PER_ROW),
+        LayerOp::Dec { .. } => return (PER_MAC_RBF, PER_ROW_DEC),
         LayerOp::Cp { .. } => return (PER_MAC_CP, PER_ROW_CP),
         _ => {}
     }

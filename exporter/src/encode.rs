@@ -339,7 +339,7 @@ fn layer_sections(payload: &mut Payload, l: &QLayer, i: usize) -> Result<LayerDe
                 mid,
             };
         }
-        LayerOp::Rbf { .. } => {
+        LayerOp::Rbf { .. } | LayerOp::Dec { .. } => {
             let rbf = l.rbf.as_ref().ok_or(EncodeError::Length {
                 layer: i,
                 what: "rbf arrays",
@@ -360,7 +360,10 @@ fn layer_sections(payload: &mut Payload, l: &QLayer, i: usize) -> Result<LayerDe
             let scales: Vec<u8> = rbf.scales.iter().flat_map(|r| r.to_bytes()).collect();
             let scales = payload.push(&scales)?;
             let align = payload.push(&rbf.align)?;
-            desc.op = LayerOp::Rbf { scales, align };
+            desc.op = match d.op {
+                LayerOp::Dec { .. } => LayerOp::Dec { scales, align },
+                _ => LayerOp::Rbf { scales, align },
+            };
         }
     }
     desc.bias_section = payload.push(&bias_bytes(l, i)?)?;

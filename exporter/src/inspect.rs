@@ -70,13 +70,15 @@ pub fn describe(model: &Model<'_>) -> String {
     s
 }
 
-/// How a layer computes `W x`: "dense", "cp rank R", "diagonal" or "rbf".
+/// How a layer computes `W x`: "dense", "cp rank R", "diagonal", "rbf" or
+/// "dec".
 pub fn op_name(op: &LayerOp) -> String {
     match op {
         LayerOp::Dense => "dense".into(),
         LayerOp::Cp { rank, .. } => format!("cp rank {rank}"),
         LayerOp::Diagonal => "diagonal".into(),
         LayerOp::Rbf { .. } => "rbf".into(),
+        LayerOp::Dec { .. } => "dec".into(),
     }
 }
 

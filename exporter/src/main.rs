@@ -135,7 +135,7 @@ enum Command {
         #[command(flatten)]
         out: OutputArgs,
     },
-    /// Import a trained OMG model (FE, FS or RBF-CAT; tools/omg/train's
+    /// Import a trained OMG model (FE, FS, RBF-CAT or DEC-CAT; tools/omg/train's
     /// model.safetensors + config.json) as a graph (docs/omg.md).
     Omg {
         /// The weights and normalisation (model.safetensors).

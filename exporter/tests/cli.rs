@@ -804,7 +804,7 @@ fn omg_exports_the_committed_model_and_refuses_a_bad_config_without_writing() {
     let e = stderr(&o);
     assert!(
         e.starts_with(&format!(
-            "error: {}: variant \"VAE\" (expected FE, FS or RBF-CAT)",
+            "error: {}: variant \"VAE\" (expected FE, FS, RBF-CAT or DEC-CAT)",
             bad.display()
         )),
         "{e}"

@@ -795,6 +795,11 @@ fn load_styles(rt: &mut Rt, styles: &'static [u8]) {
                 "style {=u8}: diagonal adapter {=u16} -> {=u16}, {} weights",
                 id.0, desc.in_dim, desc.out_dim, desc.weights
             ),
+            #[cfg(feature = "dec")]
+            LayerOp::Dec { .. } => info!(
+                "style {=u8}: DEC adapter {=u16} -> {=u16}, {} weights",
+                id.0, desc.in_dim, desc.out_dim, desc.weights
+            ),
             LayerOp::Dense | LayerOp::Rbf { .. } => info!(
                 "style {=u8}: {=str} adapter {=u16} -> {=u16}, {} weights",
                 id.0,

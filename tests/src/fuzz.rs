@@ -858,6 +858,11 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
         "rbf-small.blob".into(),
         export(&synthetic::rbf_net(5)),
     ));
+    v.push((
+        "model",
+        "dec-small.blob".into(),
+        export(&synthetic::dec_net(5)),
+    ));
     if include_large {
         v.push(("model", "default.blob".into(), golden("default/model.blob")));
         v.push((

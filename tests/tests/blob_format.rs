@@ -335,6 +335,17 @@ fn postcard_encodings_match_the_document() {
         },
     };
     assert_eq!(enc(&rbf), [0x03, 0x10, 0x80, 0x01, 0x90, 0x01, 0x20]);
+    let dec = LayerOp::Dec {
+        scales: Section {
+            offset: 16,
+            len: 128,
+        },
+        align: Section {
+            offset: 144,
+            len: 32,
+        },
+    };
+    assert_eq!(enc(&dec), [0x04, 0x10, 0x80, 0x01, 0x90, 0x01, 0x20]);
     // u8 is one raw byte, not a varint (200 would be c8 01 as a varint).
     let style = ModelKind::Style {
         base_crc: 1,
@@ -1051,6 +1062,10 @@ mod spec {
                         scales: self.section()?,
                         align: self.section()?,
                     },
+                    4 => LayerOp::Dec {
+                        scales: self.section()?,
+                        align: self.section()?,
+                    },
                     _ => return None,
                 },
                 in_dim: self.u16()?,
@@ -1402,6 +1417,7 @@ fn arb_op() -> impl Strategy<Value = LayerOp> {
         ),
         Just(LayerOp::Diagonal),
         (arb_section(), arb_section()).prop_map(|(scales, align)| LayerOp::Rbf { scales, align }),
+        (arb_section(), arb_section()).prop_map(|(scales, align)| LayerOp::Dec { scales, align }),
     ]
 }
 

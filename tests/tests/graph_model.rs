@@ -346,3 +346,48 @@ fn int16_budget_buys_graph_layer_nodes() {
     }
     assert!(b.rms < b.rms_int8);
 }
+
+/// OMG's DEC clustering layer in a graph (`synthetic::dec_net`: an
+/// encoder, the soft assignment to 3 centres, a head on `[q, z]`): the
+/// blob carries a `Dec` node and tracks the float graph as closely as the
+/// RBF one does ([`fixed_error`]). Measured: see the assertion message.
+#[test]
+fn dec_graph_tracks_its_float_graph() {
+    use host_sim::target::synthetic::{dec_net, rbf_net};
+    use phasegate::blob::LayerOp;
+    for seed in [5, 6, 7] {
+        let dec = dec_net(seed);
+        let (blob, _) = export(&dec, None, &QuantOptions::default()).unwrap();
+        let model = Model::from_bytes(&blob).unwrap();
+        let ops: Vec<_> = model
+            .header()
+            .nodes
+            .iter()
+            .filter_map(|n| match n.op {
+                NodeOp::Layer(d) => Some(d.op),
+                _ => None,
+            })
+            .collect();
+        assert!(matches!(ops[1], LayerOp::Dec { .. }), "{ops:?}");
+        for (weights, rms_bound, max_bound) in [
+            (WeightFormat::I8, 0.02, 0.08),
+            (WeightFormat::I16, 0.0005, 0.002),
+        ] {
+            let opts = QuantOptions {
+                weights,
+                ..QuantOptions::default()
+            };
+            let (rms, worst) = fixed_error(&dec, &opts);
+            let (rbf_rms, rbf_worst) = fixed_error(&rbf_net(seed), &opts);
+            println!(
+                "seed {seed} {weights:?}: DEC rms {rms:.5} max {worst:.5}; \
+                 RBF rms {rbf_rms:.5} max {rbf_worst:.5}"
+            );
+            assert!(
+                rms <= rms_bound && worst <= max_bound,
+                "seed {seed} {weights:?}: rms {rms:.5} (bound {rms_bound}), \
+                 max {worst:.5} (bound {max_bound})"
+            );
+        }
+    }
+}

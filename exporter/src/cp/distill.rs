@@ -116,7 +116,7 @@ fn layer_forward(layer: &NetLayer, x: &Array2<f64>, g: &Array2<f64>) -> (Array2<
             let gw = g.dot(&bias_matrix(&l.w));
             (&gw * x + g.dot(&bias_matrix(&l.b)), None)
         }
-        NetLayer::Rbf(_) => (rows_apply(layer, x, &g), None),
+        NetLayer::Rbf(_) | NetLayer::Dec(_) => (rows_apply(layer, x, &g), None),
     }
 }
 
@@ -209,6 +209,15 @@ fn layer_backward(
             }
             (dx, Vec::new())
         }
+        // Its centres are not distilled either (see `params_mut`).
+        (NetLayer::Dec(l), _) => {
+            let mut dx = Array2::zeros(x.dim());
+            for (s, (xr, mut dxr)) in x.rows().into_iter().zip(dx.rows_mut()).enumerate() {
+                let gate: Vec<(usize, f64)> = g.row(s).iter().copied().enumerate().collect();
+                dxr += &l.backward(&gate, &xr.to_owned(), &dy.row(s).to_owned());
+            }
+            (dx, Vec::new())
+        }
     }
 }
 
@@ -235,7 +244,7 @@ fn params_mut(layer: &mut NetLayer) -> Vec<ArrayViewMutD<'_, f64>> {
                 .chain(l.b.iter_mut().map(|b| b.view_mut().into_dyn()))
                 .collect()
         }
-        NetLayer::Rbf(_) => Vec::new(),
+        NetLayer::Rbf(_) | NetLayer::Dec(_) => Vec::new(),
     }
 }
 

@@ -403,6 +403,16 @@ fn layer_arrays(op: &NetLayer, suffix: &str, bias_name: &str, out: &mut Arrays) 
             let (s, d) = stack(&l.b);
             out.push((bias_name.to_string(), s, d));
         }
+        NetLayer::Dec(l) => {
+            let (r, c) = l.centres.first().map_or((0, 0), Array2::dim);
+            out.push((
+                format!("centres{suffix}"),
+                vec![l.centres.len() as u64, r as u64, c as u64],
+                f32s(l.centres.iter().flatten().copied()),
+            ));
+            let (s, d) = stack(&l.b);
+            out.push((bias_name.to_string(), s, d));
+        }
     }
 }
 

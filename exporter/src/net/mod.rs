@@ -24,7 +24,7 @@ pub mod residual;
 
 use ndarray::{Array1, Array2, Axis};
 
-pub use crate::ops::{CpLayer, DiagLayer, ExpertLayer, NetLayer, RbfLayer};
+pub use crate::ops::{CpLayer, DecLayer, DiagLayer, ExpertLayer, NetLayer, RbfLayer};
 pub use gating::{wrap_phase, GatingMode, ParseGatingModeError};
 pub use graph::{Graph, GraphNode, GraphOp, GraphTrace};
 pub use phasegate::blob::{GateSource, Slice, Source};

@@ -36,6 +36,9 @@
 //! RBF-CAT (spec §2.2): an `rbf` node after the encoder computes
 //! `psi = exp(-(sigma |z - mu|)^2)` for the C clusters (the graph's RBF op),
 //! and every expert layer reads `[psi, h]`, two slices concatenated.
+//! DEC-CAT the same with a `dec` node (`dec.centres` (C, L)): `psi = q`, the
+//! Student-t soft assignment of the graph's DEC op (no trained DEC model
+//! ships; `tools/omg` does not train one).
 
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -48,7 +51,7 @@ use serde::Deserialize;
 use super::graph::{Graph, GraphNode, GraphOp};
 use super::{ExpertLayer, GatingMode, Net, NetLayer, Wiring};
 use crate::npz::NpArray;
-use crate::ops::RbfLayer;
+use crate::ops::{DecLayer, RbfLayer};
 use phasegate::blob::{GateSource, Slice, Source};
 
 /// The `format` field of an OMG `config.json`.
@@ -322,6 +325,19 @@ fn rbf_layer(arrays: &BTreeMap<String, NpArray>, c: usize, latent: usize) -> Res
     })
 }
 
+/// The DEC layer of DEC-CAT: `dec.centres` (C, L), `q_j = (1 + |z -
+/// mu_j|^2)^-1` normalised over the C centres (the author's code, alpha =
+/// 1; spec §2.2).
+fn dec_layer(arrays: &BTreeMap<String, NpArray>, c: usize, latent: usize) -> Result<DecLayer> {
+    let why = format!("DEC layer: {c} clusters over the latent {latent}");
+    let mu = get(arrays, "dec.centres")?;
+    check_shape(mu, "dec.centres", &[c, latent], &why)?;
+    Ok(DecLayer {
+        centres: vec![Array2::from_shape_vec((c, latent), mu.data.clone())?],
+        b: vec![Array1::zeros(c)],
+    })
+}
+
 fn input_slice(r: &Range<usize>) -> Result<Slice> {
     Ok(Slice {
         source: Source::Input,
@@ -389,9 +405,9 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     }
     let cat = match cfg.variant.as_str() {
         "FE" | "FS" => 0,
-        "RBF-CAT" if cfg.sizes.clusters > 0 => cfg.sizes.clusters,
-        "RBF-CAT" => bail!("variant RBF-CAT needs sizes.clusters > 0"),
-        v => bail!("variant {v:?} (expected FE, FS or RBF-CAT)"),
+        "RBF-CAT" | "DEC-CAT" if cfg.sizes.clusters > 0 => cfg.sizes.clusters,
+        v @ ("RBF-CAT" | "DEC-CAT") => bail!("variant {v} needs sizes.clusters > 0"),
+        v => bail!("variant {v:?} (expected FE, FS, RBF-CAT or DEC-CAT)"),
     };
     let (j, k) = (cfg.joints, cfg.key);
     let s = &cfg.sizes;
@@ -495,9 +511,12 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
         experts(arrays, 1, s.experts, cat + h, h)?,
         experts(arrays, 2, s.experts, cat + h, moe_out)?,
     ];
-    let rbf = (cat > 0)
-        .then(|| rbf_layer(arrays, cat, s.latent))
-        .transpose()?;
+    // The clustering layer, `(node name, layer)`.
+    let clustering = match (cat, cfg.variant.as_str()) {
+        (0, _) => None,
+        (_, "DEC-CAT") => Some(("dec", NetLayer::Dec(dec_layer(arrays, cat, s.latent)?))),
+        _ => Some(("rbf", NetLayer::Rbf(rbf_layer(arrays, cat, s.latent)?))),
+    };
     let dec = mlp(arrays, "dec", s.latent, s.ae_hidden, pose.len(), "decoder")?;
 
     // The output node: [dphase, phase, dec1, cost'] -> [phase', pose', cost'].
@@ -630,12 +649,12 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     );
     let g = GateSource::Node(u8::try_from(alpha)?);
     let [m0, m1, m2] = moe;
-    // RBF-CAT: psi in front of every expert layer's input.
-    let psi = match rbf {
-        Some(l) => vec![whole(
+    // RBF-CAT and DEC-CAT: psi in front of every expert layer's input.
+    let psi = match clustering {
+        Some((name, l)) => vec![whole(
             add(
-                "rbf",
-                Some(NetLayer::Rbf(l)),
+                name,
+                Some(l),
                 vec![whole(zn, s.latent)?],
                 GateSource::None,
                 false,
@@ -885,7 +904,8 @@ mod tests {
         let m = logits.iter().copied().fold(f64::MIN, f64::max);
         let e: Vec<f64> = logits.iter().map(|l| (l - m).exp()).collect();
         let alpha: Vec<f64> = e.iter().map(|v| v / e.iter().sum::<f64>()).collect();
-        let psi: Vec<f64> = match (t.get("rbf.centres"), t.get("rbf.scales")) {
+        let centres = t.get("rbf.centres").or(t.get("dec.centres"));
+        let psi: Vec<f64> = match (centres, t.get("rbf.scales")) {
             (Some(mu), Some(sigma)) if cfg.variant == "RBF-CAT" => {
                 let l = zc.len();
                 (0..sigma.data.len())
@@ -894,6 +914,17 @@ mod tests {
                         (-(sigma.data[j] * sigma.data[j]) * d2).exp()
                     })
                     .collect()
+            }
+            (Some(mu), _) if cfg.variant == "DEC-CAT" => {
+                let l = zc.len();
+                let t: Vec<f64> = (0..mu.data.len() / l)
+                    .map(|j| {
+                        let d2: f64 = (0..l).map(|i| (zc[i] - mu.data[j * l + i]).powi(2)).sum();
+                        1.0 / (1.0 + d2)
+                    })
+                    .collect();
+                let sum: f64 = t.iter().sum();
+                t.iter().map(|t| t / sum).collect()
             }
             _ => Vec::new(),
         };
@@ -974,6 +1005,38 @@ mod tests {
             },
         );
         (cfg, arrays)
+    }
+
+    /// [`tiny_rbf_cat`] as DEC-CAT: its centres as `dec.centres`.
+    fn tiny_dec_cat(seed: u64, clusters: usize) -> (OmgConfig, BTreeMap<String, NpArray>) {
+        let (mut cfg, mut arrays) = tiny_rbf_cat(seed, clusters);
+        cfg.variant = "DEC-CAT".into();
+        let mu = arrays.remove("rbf.centres").unwrap();
+        arrays.remove("rbf.scales");
+        arrays.insert("dec.centres".into(), mu);
+        (cfg, arrays)
+    }
+
+    #[test]
+    fn dec_cat_puts_q_in_front_of_every_expert_layer() {
+        let (cfg, arrays) = tiny_dec_cat(6, 4);
+        let m = net_from_omg(&cfg, &arrays).unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        for _ in 0..20 {
+            let x: Vec<f64> = (0..cfg.model_width)
+                .map(|_| rng.gen_range(-2.0..2.0))
+                .collect();
+            let want = reference(&cfg, &arrays, &x);
+            for (i, (g, w)) in m.step(&x).iter().zip(&want).enumerate() {
+                assert!((g - w).abs() < 1e-12, "{i}: {g} vs {w}");
+            }
+        }
+        let mut a = arrays.clone();
+        a.get_mut("dec.centres").unwrap().shape = vec![3, 4];
+        assert!(err(&cfg, &a).contains("dec.centres"), "{}", err(&cfg, &a));
+        let mut c = cfg.clone();
+        c.sizes.clusters = 0;
+        assert!(err(&c, &arrays).contains("DEC-CAT needs sizes.clusters > 0"));
     }
 
     #[test]
@@ -1089,7 +1152,7 @@ mod tests {
         );
         let mut c = cfg.clone();
         c.variant = "VAE".into();
-        assert!(err(&c, &arrays).contains("expected FE, FS or RBF-CAT"));
+        assert!(err(&c, &arrays).contains("expected FE, FS, RBF-CAT or DEC-CAT"));
         let mut c = cfg.clone();
         c.phase_update.a = 1.5;
         assert_eq!(

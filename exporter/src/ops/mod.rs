@@ -8,6 +8,7 @@
 //! (see `docs/adding-an-op.md`).
 
 pub mod cp;
+pub mod dec;
 pub mod dense;
 pub mod diag;
 pub mod rbf;
@@ -15,6 +16,7 @@ pub mod rbf;
 use ndarray::{Array1, Array2};
 
 pub use cp::CpLayer;
+pub use dec::DecLayer;
 pub use dense::ExpertLayer;
 pub use diag::DiagLayer;
 pub use rbf::RbfLayer;
@@ -38,6 +40,8 @@ pub enum NetLayer {
     Diagonal(DiagLayer),
     /// Gaussian radial basis functions (not linear).
     Rbf(RbfLayer),
+    /// Student-t soft assignment to centres (not linear).
+    Dec(DecLayer),
 }
 
 impl NetLayer {
@@ -55,6 +59,7 @@ impl NetLayer {
             }
             NetLayer::Diagonal(l) => (l.apply(gate, x), None),
             NetLayer::Rbf(l) => (l.apply(gate, x), None),
+            NetLayer::Dec(l) => (l.apply(gate, x), None),
         }
     }
 
@@ -70,6 +75,7 @@ impl NetLayer {
             NetLayer::Cp(l) => l.b.nrows(),
             NetLayer::Diagonal(l) => l.w.first().map_or(0, |w| w.len()),
             NetLayer::Rbf(l) => l.centres.first().map_or(0, |c| c.ncols()),
+            NetLayer::Dec(l) => l.centres.first().map_or(0, |c| c.ncols()),
         }
     }
 
@@ -80,6 +86,7 @@ impl NetLayer {
             NetLayer::Cp(l) => l.a.nrows(),
             NetLayer::Diagonal(l) => l.w.first().map_or(0, |w| w.len()),
             NetLayer::Rbf(l) => l.centres.first().map_or(0, |c| c.nrows()),
+            NetLayer::Dec(l) => l.centres.first().map_or(0, |c| c.nrows()),
         }
     }
 
@@ -90,6 +97,7 @@ impl NetLayer {
             NetLayer::Cp(l) => l.experts(),
             NetLayer::Diagonal(l) => l.w.len(),
             NetLayer::Rbf(l) => l.centres.len(),
+            NetLayer::Dec(l) => l.centres.len(),
         }
     }
 
@@ -100,6 +108,7 @@ impl NetLayer {
             NetLayer::Cp(l) => l.rank() * (self.in_dim() + self.out_dim() + l.experts()),
             NetLayer::Diagonal(l) => l.w.len() * self.out_dim(),
             NetLayer::Rbf(l) => l.centres.len() * self.out_dim() * (self.in_dim() + 1),
+            NetLayer::Dec(l) => l.centres.len() * self.out_dim() * self.in_dim(),
         }
     }
 
@@ -111,13 +120,14 @@ impl NetLayer {
         }
     }
 
-    /// "dense", "cp", "diagonal" or "rbf".
+    /// "dense", "cp", "diagonal", "rbf" or "dec".
     pub fn form(&self) -> &'static str {
         match self {
             NetLayer::Dense(_) => "dense",
             NetLayer::Cp(_) => "cp",
             NetLayer::Diagonal(_) => "diagonal",
             NetLayer::Rbf(_) => "rbf",
+            NetLayer::Dec(_) => "dec",
         }
     }
 
@@ -128,6 +138,7 @@ impl NetLayer {
             NetLayer::Cp(l) => cp::quantise(l, spec),
             NetLayer::Diagonal(l) => diag::quantise(l, spec),
             NetLayer::Rbf(l) => rbf::quantise(l, spec),
+            NetLayer::Dec(l) => dec::quantise(l, spec),
         }
     }
 
@@ -141,13 +152,14 @@ impl NetLayer {
             NetLayer::Diagonal(l) => l.w.iter().map(Array2::from_diag).collect(),
             // No weights multiply the inputs: every column counts the same.
             NetLayer::Rbf(l) => vec![Array2::eye(self.in_dim()); l.centres.len()],
+            NetLayer::Dec(l) => vec![Array2::eye(self.in_dim()); l.centres.len()],
         }
     }
 
     /// Whether the rows of [`Self::input_rows`] are the op's outputs (so
     /// output weights apply to them).
     pub fn rows_are_outputs(&self) -> bool {
-        !matches!(self, NetLayer::Cp(_) | NetLayer::Rbf(_))
+        !matches!(self, NetLayer::Cp(_) | NetLayer::Rbf(_) | NetLayer::Dec(_))
     }
 
     /// Fewest calibration samples this op needs.

@@ -81,6 +81,26 @@ pub fn quantise(
     l: &RbfLayer,
     spec: &LayerSpec<'_>,
 ) -> Result<(QLayer, QuantLayerReport), QuantError> {
+    quantise_as(
+        l,
+        spec,
+        LayerOp::Rbf {
+            scales: Section::default(),
+            align: Section::default(),
+        },
+        "rbf",
+    )
+}
+
+/// Quantises the centres, scales (`sigma^2`) and biases of `l` under the
+/// header variant `op` (RBF, or DEC with `sigma = 1`, whose `psi` is also
+/// at most `2^31`), named `form` in the report.
+pub(crate) fn quantise_as(
+    l: &RbfLayer,
+    spec: &LayerSpec<'_>,
+    op: LayerOp,
+    form: &'static str,
+) -> Result<(QLayer, QuantLayerReport), QuantError> {
     let experts = l.centres.len();
     let (out, inp) = l.centres.first().map_or((0, 0), Array2::dim);
     let invalid = |why: String| QuantError::Invalid(format!("layer {}: {why}", spec.index));
@@ -94,7 +114,7 @@ pub fn quantise(
         (0..inp).find(|&i| (f64::from(fracs[i]).exp2() - spec.in_scales[i]).abs() > 0.0)
     {
         return Err(invalid(format!(
-            "RBF input {i} has scale {}, not a power of two",
+            "{form} input {i} has scale {}, not a power of two",
             spec.in_scales[i]
         )));
     }
@@ -105,7 +125,7 @@ pub fn quantise(
         .collect::<Option<_>>()
         .ok_or_else(|| {
             invalid(format!(
-                "RBF inputs' formats differ by more than {MAX_ALIGN} bits"
+                "{form} inputs' formats differ by more than {MAX_ALIGN} bits"
             ))
         })?;
     let mut centres = vec![0i32; experts * out * inp];
@@ -137,17 +157,7 @@ pub fn quantise(
     let requant = (0..out)
         .map(|j| requant_for(spec, j, PSI_SCALE, worst * g1))
         .collect::<Result<_, _>>()?;
-    let mut desc = layer_desc(
-        spec,
-        LayerOp::Rbf {
-            scales: Section::default(),
-            align: Section::default(),
-        },
-        inp,
-        out,
-        experts,
-        acc,
-    );
+    let mut desc = layer_desc(spec, op, inp, out, experts, acc);
     desc.weights = WeightFormat::I16;
     let ql = QLayer {
         desc,
@@ -158,7 +168,7 @@ pub fn quantise(
         rbf: Some(QRbf { scales, align }),
         gated: spec.gated,
     };
-    let rep = layer_report(spec, &ql, "rbf", None, sig, noise);
+    let rep = layer_report(spec, &ql, form, None, sig, noise);
     Ok((ql, rep))
 }
 

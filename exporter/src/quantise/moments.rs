@@ -326,7 +326,7 @@ fn layer_batch(layer: &NetLayer, x: &Array2<f64>, g: &Array2<f64>) -> Array2<f64
         }
         NetLayer::Cp(c) => (x.dot(&c.b) * g.dot(&c.d)).dot(&c.a.t()) + g.dot(&stacked(&c.bias)),
         NetLayer::Diagonal(d) => x * &g.dot(&stacked(&d.w)) + g.dot(&stacked(&d.b)),
-        NetLayer::Rbf(_) => crate::cp::distill::rows_apply(layer, x, g),
+        NetLayer::Rbf(_) | NetLayer::Dec(_) => crate::cp::distill::rows_apply(layer, x, g),
     }
 }
 

@@ -212,13 +212,14 @@ pub struct StyleReport {
     pub range_used: f64,
 }
 
-/// "full", "diagonal", "cp" or "rbf".
+/// "full", "diagonal", "cp", "rbf" or "dec".
 pub fn form_name(op: &NetLayer) -> &'static str {
     match op {
         NetLayer::Dense(_) => "full",
         NetLayer::Diagonal(_) => "diagonal",
         NetLayer::Cp(_) => "cp",
         NetLayer::Rbf(_) => "rbf",
+        NetLayer::Dec(_) => "dec",
     }
 }
 
@@ -356,6 +357,7 @@ pub fn describe_style(bytes: &[u8]) -> Result<String> {
         phasegate::blob::LayerOp::Diagonal => "diagonal".to_string(),
         phasegate::blob::LayerOp::Cp { rank, .. } => format!("cp rank {rank}"),
         phasegate::blob::LayerOp::Rbf { .. } => "rbf".to_string(),
+        phasegate::blob::LayerOp::Dec { .. } => "dec".to_string(),
     };
     let gating = match s.gating() {
         Gating::Single => "single".to_string(),

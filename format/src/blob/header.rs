@@ -234,6 +234,22 @@ pub enum LayerOp {
         /// finest input format.
         align: Section,
     },
+    /// Student-t soft assignment (OMG's DEC clustering layer, alpha = 1):
+    /// `psi_kj = 2^31 q_kj`, `q_kj = t_kj / sum_l t_kl` with `t_kj = 1 /
+    /// (1 + u_kj)`, `u_kj` the squared distance of the input to centre
+    /// `c_kj` as the RBF op computes it (the same sections: `weight_section`
+    /// holds the centres, `scales` the `experts x out_dim` scale records,
+    /// `align` the `in_dim` alignment shifts), normalised over each
+    /// expert's `out_dim` centres. (With the runtime's `dec` feature only;
+    /// without it such a layer does not decode.)
+    #[cfg(feature = "dec")]
+    Dec {
+        /// `experts x out_dim` scale records, 8 bytes each
+        /// ([`crate::blob::RbfScale`]).
+        scales: Section,
+        /// `in_dim` bytes, as [`LayerOp::Rbf`]'s.
+        align: Section,
+    },
 }
 
 /// A byte range of the payload (offsets are from the payload's first byte).

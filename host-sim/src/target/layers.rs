@@ -79,6 +79,7 @@ fn describe(model: &Model<'_>, i: u8) -> (String, String, String, u32, u64) {
                 LayerOp::Cp { rank, .. } => ("cp", format!(" rank {rank}")),
                 LayerOp::Diagonal => ("diagonal", String::new()),
                 LayerOp::Rbf { .. } => ("rbf", String::new()),
+                LayerOp::Dec { .. } => ("dec", String::new()),
             };
             let w = match d.weights {
                 WeightFormat::I8 => "i8",

@@ -197,6 +197,9 @@ pub struct TargetReport {
     pub styles: Vec<StyleFile>,
     /// The rig blob that was flashed (the model is then its motion blob).
     pub rig: Option<super::styles::RigFile>,
+    /// Whether the reach build ran (a rig pair, or a model with a DEC
+    /// node: the OMG firmware carries the `rig` and `dec` features).
+    pub reach_build: bool,
     /// Bytes of the STYLES image, and of the STYLES region.
     pub styles_image: (usize, u64),
     /// The mix schedule.
@@ -249,10 +252,11 @@ impl TargetReport {
     }
 
     /// Issue 4's memory budgets: statics plus stack within [`RAM_BUDGET`],
-    /// The firmware build that ran (the reach build for a rig pair: the
-    /// one with the `rig` feature) and its .text budget.
+    /// The firmware build that ran (the reach build for a rig pair or a
+    /// DEC node: the one with the `rig` and `dec` features) and its .text
+    /// budget.
     pub fn build(&self) -> (&'static str, u64) {
-        if self.rig.is_some() {
+        if self.reach_build {
             (
                 REACH_FIRMWARE,
                 crate::footprint::TEXT_BUDGETS.reach_firmware,

@@ -355,8 +355,10 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         e.iter().zip(&host_q).filter(|(a, b)| a != b).count() + e.len().abs_diff(host_q.len())
     });
 
-    // A rig pair runs on the reach build, the one with the `rig` feature.
-    let elf_path = if rig.is_some() {
+    // A rig pair, or a model with a DEC node, runs on the reach build (the
+    // OMG firmware, with the `rig` and `dec` features).
+    let reach_build = rig.is_some() || has_dec_node(&blob);
+    let elf_path = if reach_build {
         eprintln!(
             "building the reach firmware (cargo build --release --bin reach-firmware --features reach in {}) ...",
             firmware_dir().display()
@@ -483,6 +485,7 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         styles_image: (styles_image.len(), elf.styles.1 - elf.styles.0),
         styles: style_files,
         rig,
+        reach_build,
         mix,
         mix_groups,
         model_ram_bytes,
@@ -492,5 +495,16 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         log: booted.log,
         wall: booted.run.wall,
         cycles,
+    })
+}
+
+/// Whether `blob` (a motion or graph blob) has a DEC layer node, which only
+/// the reach build of the firmware runs.
+fn has_dec_node(blob: &[u8]) -> bool {
+    phasegate::Model::from_bytes(blob).is_ok_and(|m| {
+        m.header().nodes.iter().any(|n| {
+            n.layer()
+                .is_some_and(|l| matches!(l.op, phasegate::blob::LayerOp::Dec { .. }))
+        })
     })
 }

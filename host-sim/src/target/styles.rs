@@ -108,6 +108,7 @@ impl StyleFile {
             LayerOp::Diagonal => ("diagonal", None),
             LayerOp::Cp { rank, .. } => ("cp", Some(rank)),
             LayerOp::Rbf { .. } => ("rbf", None),
+            LayerOp::Dec { .. } => ("dec", None),
         };
         Ok(StyleFile {
             path: path.to_path_buf(),

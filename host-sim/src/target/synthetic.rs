@@ -290,7 +290,22 @@ pub fn branching_net(seed: u64) -> Net {
 /// head reading `[psi, z]`; `6 -> 5`. Fuzz seeds and tests that want the
 /// RBF op in a blob of a few hundred bytes.
 pub fn rbf_net(seed: u64) -> Net {
-    use exporter::net::{GateSource, Graph, GraphNode, GraphOp, RbfLayer, Slice, Source, Wiring};
+    clustering_net(seed, 4, 3, false)
+}
+
+/// [`rbf_net`] with a DEC node (OMG's DEC-CAT clustering layer, the soft
+/// assignment to 3 centres) in place of the RBF one.
+pub fn dec_net(seed: u64) -> Net {
+    clustering_net(seed, 4, 3, true)
+}
+
+/// An encoder `6 -> latent`, a clustering layer of `clusters` centres over
+/// it (RBF, or DEC when `dec`), and a head `clusters + latent -> 5` reading
+/// `[psi, z]`.
+pub fn clustering_net(seed: u64, latent: usize, clusters: usize, dec: bool) -> Net {
+    use exporter::net::{
+        DecLayer, GateSource, Graph, GraphNode, GraphOp, RbfLayer, Slice, Source, Wiring,
+    };
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let dense = |rng: &mut ChaCha8Rng, out: usize, inp: usize| {
         let sd = 1.3 / (inp as f64).sqrt();
@@ -299,13 +314,23 @@ pub fn rbf_net(seed: u64) -> Net {
             b: vec![Array1::from_shape_fn(out, |_| 0.1 * normal(rng))],
         })
     };
-    let enc = dense(&mut rng, 4, 6);
-    let rbf = NetLayer::Rbf(RbfLayer {
-        centres: vec![Array2::from_shape_fn((3, 4), |_| normal(&mut rng))],
-        sigma: vec![Array1::from_shape_fn(3, |_| rng.gen_range(0.2..1.0))],
-        b: vec![Array1::zeros(3)],
-    });
-    let head = dense(&mut rng, 5, 7);
+    let enc = dense(&mut rng, latent, 6);
+    let centres = vec![Array2::from_shape_fn((clusters, latent), |_| {
+        normal(&mut rng)
+    })];
+    let rbf = if dec {
+        NetLayer::Dec(DecLayer {
+            centres,
+            b: vec![Array1::zeros(clusters)],
+        })
+    } else {
+        NetLayer::Rbf(RbfLayer {
+            centres,
+            sigma: vec![Array1::from_shape_fn(clusters, |_| rng.gen_range(0.2..1.0))],
+            b: vec![Array1::zeros(clusters)],
+        })
+    };
+    let head = dense(&mut rng, 5, clusters + latent);
     let s = |source, start: u16, len: u16| Slice { source, start, len };
     let node = |name: &str, layer: usize, inputs: Vec<Slice>| GraphNode {
         name: name.to_string(),
@@ -323,11 +348,18 @@ pub fn rbf_net(seed: u64) -> Net {
         wiring: Wiring::Graph(Graph {
             nodes: vec![
                 node("enc", 0, vec![s(Source::Input, 0, 6)]),
-                node("rbf", 1, vec![s(Source::Node(0), 0, 4)]),
+                node(
+                    if dec { "dec" } else { "rbf" },
+                    1,
+                    vec![s(Source::Node(0), 0, latent as u16)],
+                ),
                 node(
                     "head",
                     2,
-                    vec![s(Source::Node(1), 0, 3), s(Source::Node(0), 0, 4)],
+                    vec![
+                        s(Source::Node(1), 0, clusters as u16),
+                        s(Source::Node(0), 0, latent as u16),
+                    ],
                 ),
             ],
             output: s(Source::Node(2), 0, 5),

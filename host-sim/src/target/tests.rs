@@ -341,6 +341,7 @@ fn budgets_bite() {
         stages: vec![],
         styles: vec![],
         rig: None,
+        reach_build: false,
         styles_image: (0, 0),
         mix: MixSpec::default(),
         mix_groups: vec![],
@@ -766,6 +767,58 @@ fn whole_cp_model_is_bit_exact_on_the_target() {
     );
     assert!(report.infer_instructions.min > 0);
     report.check_budgets().unwrap();
+}
+
+/// OMG's DEC op on the Cortex-M4: graphs with a DEC node (3 centres over a
+/// 4-wide latent, and 16 over a 32-wide one, as the tiny RBF-CAT's) run on
+/// the reach build (the one with the `dec` feature), bit-exact with the
+/// host, within its budgets. The same graphs with an RBF node (the
+/// inference firmware) give the cost of the soft assignment's divisions,
+/// which `exporter::cost::PER_ROW_DEC` prices.
+#[test]
+fn dec_graphs_are_bit_exact_on_the_reach_firmware() {
+    let name = "dec_graphs_are_bit_exact_on_the_reach_firmware";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    for (latent, clusters) in [(4usize, 3usize), (32, 16)] {
+        let mut medians = Vec::new();
+        for dec in [true, false] {
+            let net = synthetic::clustering_net(61, latent, clusters, dec);
+            let (blob, _) =
+                exporter::export::export(&net, None, &exporter::quantise::QuantOptions::default())
+                    .unwrap();
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("clustering.blob");
+            std::fs::write(&path, &blob).unwrap();
+            let report = execute(&TargetArgs {
+                model: path,
+                frames: Some(8),
+                ..TargetArgs::default()
+            })
+            .unwrap();
+            println!("{}", report.render());
+            assert_eq!(report.reach_build, dec, "{}", report.render());
+            assert!(report.bit_exact(), "{}", report.render());
+            assert_eq!(report.frames, 8);
+            assert_eq!(
+                u64::from(report.macs_per_frame),
+                (6 * latent + clusters * latent + (clusters + latent) * 5) as u64
+            );
+            report.check_budgets().unwrap();
+            let model = Model::from_bytes(&blob).unwrap();
+            medians.push((
+                report.infer_instructions.median,
+                exporter::cost::estimate_instructions(&model),
+            ));
+        }
+        let ((dec, dec_est), (rbf, rbf_est)) = (medians[0], medians[1]);
+        println!(
+            "{clusters} centres over {latent}: DEC {dec}, RBF {rbf} instructions per frame \
+             (median): {:.0} per DEC row more; estimated {dec_est} and {rbf_est}",
+            (dec as f64 - rbf as f64) / clusters as f64
+        );
+    }
 }
 
 /// Issue 5: a base and two styles (CP and diagonal adapters beside layer 1)

@@ -828,3 +828,5 @@ op_contract!(cp, crate::ops::cp::case::Cp, 3);
 op_contract!(diagonal, crate::ops::diagonal::case::Diagonal, 2);
 // RBF centres are int16 only.
 op_contract!(rbf, crate::ops::rbf::case::Rbf, 1);
+// DEC centres too.
+op_contract!(dec, crate::ops::dec::case::Dec, 1);

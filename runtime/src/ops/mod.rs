@@ -8,6 +8,7 @@
 //! | [`cp`] | `Cp` | `A diag(d_k) B^T x`, the matrix never formed |
 //! | [`diagonal`] | `Diagonal` | `w_k . x` (`in == out`) |
 //! | [`rbf`] | `Rbf` | `2^31 exp(-sigma_k^2 |x - c_k|^2)` per row (not linear) |
+//! | `dec` (feature `dec`) | `Dec` | `2^31 q_k`, the Student-t soft assignment to the centres `c_k` (not linear) |
 //!
 //! An op's module holds all of it: binding its payload sections (structural
 //! checks), its value checks and overflow proof (re-derived at load from
@@ -28,6 +29,8 @@
 mod check_rng;
 pub(crate) mod common;
 pub mod cp;
+#[cfg(any(test, feature = "dec"))]
+pub mod dec;
 pub mod dense;
 pub mod diagonal;
 pub mod rbf;
@@ -92,43 +95,50 @@ pub trait GatedOp<'a>: Sized {
 /// header-only figures and `bind`, and on the variant for the rest. This
 /// list is the only place that maps a `LayerOp` to its module.
 macro_rules! closed_set {
-    ($( $(#[$doc:meta])* $variant:ident($ty:ident) = $pat:pat, )*) => {
+    ($( $(#[doc = $doc:literal])* $(#[cfg($cfg:meta)])? $variant:ident($ty:ident) = $pat:pat, )*) => {
         /// A validated layer of any op, bound to its payload sections.
         #[derive(Clone, Copy, Debug)]
         pub enum Layer<'a> {
-            $( $(#[$doc])* $variant($ty<'a>), )*
+            $( $(#[doc = $doc])* $(#[cfg($cfg)])? $variant($ty<'a>), )*
         }
 
         impl<'a> GatedOp<'a> for Layer<'a> {
             fn macs(desc: &LayerDesc, active: u64) -> u64 {
-                match desc.op { $( $pat => $ty::macs(desc, active), )* }
+                match desc.op { $( $(#[cfg($cfg)])? $pat => $ty::macs(desc, active), )* #[allow(unreachable_patterns)] _ => 0 }
             }
             fn scratch(desc: &LayerDesc) -> usize {
-                match desc.op { $( $pat => $ty::scratch(desc), )* }
+                match desc.op { $( $(#[cfg($cfg)])? $pat => $ty::scratch(desc), )* #[allow(unreachable_patterns)] _ => 0 }
             }
             fn bind(payload: &'a [u8], desc: LayerDesc, index: u8) -> Result<Self> {
-                match desc.op { $( $pat => $ty::bind(payload, desc, index).map(Layer::$variant), )* }
+                match desc.op {
+                    $( $(#[cfg($cfg)])? $pat => $ty::bind(payload, desc, index).map(Layer::$variant), )*
+                    // An op the format decodes but this build leaves out.
+                    #[allow(unreachable_patterns)]
+                    _ => Err(crate::error::Error::UnsupportedParameter { layer: index }),
+                }
             }
             fn check(&self, gating: &Gating) -> Result<()> {
-                match self { $( Layer::$variant(l) => l.check(gating), )* }
+                match self { $( $(#[cfg($cfg)])? Layer::$variant(l) => l.check(gating), )* }
             }
             fn desc(&self) -> &LayerDesc {
-                match self { $( Layer::$variant(l) => l.desc(), )* }
+                match self { $( $(#[cfg($cfg)])? Layer::$variant(l) => l.desc(), )* }
             }
             fn desc_mut(&mut self) -> &mut LayerDesc {
-                match self { $( Layer::$variant(l) => l.desc_mut(), )* }
+                match self { $( $(#[cfg($cfg)])? Layer::$variant(l) => l.desc_mut(), )* }
             }
             fn requant(&self) -> &'a [u8] {
-                match self { $( Layer::$variant(l) => l.requant(), )* }
+                match self { $( $(#[cfg($cfg)])? Layer::$variant(l) => l.requant(), )* }
             }
             fn run(&self, gate: &Gate, x: &[i16], scratch: &mut [i16], y: &mut [i16]) -> Result<()> {
-                match self { $( Layer::$variant(l) => l.run(gate, x, scratch, y), )* }
+                match self { $( $(#[cfg($cfg)])? Layer::$variant(l) => l.run(gate, x, scratch, y), )* }
             }
         }
     };
 }
 
 use cp::CpLayer;
+#[cfg(any(test, feature = "dec"))]
+use dec::DecLayer;
 use dense::DenseLayer;
 use diagonal::DiagLayer;
 use rbf::RbfLayer;
@@ -142,6 +152,9 @@ closed_set! {
     Diagonal(DiagLayer) = LayerOp::Diagonal,
     /// `LayerOp::Rbf`: [`rbf`].
     Rbf(RbfLayer) = LayerOp::Rbf { .. },
+    /// `LayerOp::Dec`: `dec` (feature `dec`).
+    #[cfg(any(test, feature = "dec"))]
+    Dec(DecLayer) = LayerOp::Dec { .. },
 }
 
 impl<'a> Layer<'a> {

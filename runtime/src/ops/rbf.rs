@@ -81,6 +81,13 @@ impl<'a> RbfLayer<'a> {
 
     /// `psi` of stored row `row` at `x`, Q31.
     fn psi(&self, row: usize, x: &[i16]) -> i64 {
+        ONE_Q31 + expm1_neg_q31(self.position(row, x))
+    }
+
+    /// The table position of stored row `row` at `x`: `floor(D m / 2^s)`
+    /// saturated to u64, `D` the aligned squared distance (the DEC op's
+    /// too).
+    pub(crate) fn position(&self, row: usize, x: &[i16]) -> u64 {
         let mut d2 = 0u64;
         for ((c, a), &xi) in self.row(row).zip(x) {
             let d = (i64::from(xi) - c).unsigned_abs();
@@ -98,7 +105,7 @@ impl<'a> RbfLayer<'a> {
                 shift: 0,
             });
         let pos = (u128::from(d2) * u128::from(scale.multiplier)) >> scale.shift;
-        ONE_Q31 + expm1_neg_q31(u64::try_from(pos).unwrap_or(u64::MAX))
+        u64::try_from(pos).unwrap_or(u64::MAX)
     }
 }
 
@@ -110,10 +117,14 @@ impl<'a> GatedOp<'a> for RbfLayer<'a> {
 
     /// `weight_section`: the centres (`I16` only: a centre lives in its
     /// input's format, which int8 could not span); then the scale records,
-    /// the alignment shifts, biases and output records.
+    /// the alignment shifts, biases and output records. (The DEC op's
+    /// sections are the same: `ops::dec` binds them here.)
     fn bind(payload: &'a [u8], desc: LayerDesc, index: u8) -> Result<Self> {
-        let LayerOp::Rbf { scales, align } = desc.op else {
-            return Err(Error::UnsupportedParameter { layer: index });
+        let (scales, align) = match desc.op {
+            LayerOp::Rbf { scales, align } => (scales, align),
+            #[cfg(any(test, feature = "dec"))]
+            LayerOp::Dec { scales, align } => (scales, align),
+            _ => return Err(Error::UnsupportedParameter { layer: index }),
         };
         if desc.weights != WeightFormat::I16 {
             return Err(Error::UnsupportedParameter { layer: index });
@@ -217,7 +228,7 @@ impl<'a> GatedOp<'a> for RbfLayer<'a> {
 #[cfg(test)]
 pub(crate) mod case {
     use super::{RbfLayer, MAX_ALIGN};
-    use crate::blob::{Gating, LayerDesc, LayerOp, RbfScale, WeightFormat};
+    use crate::blob::{Gating, LayerDesc, LayerOp, RbfScale, Section, WeightFormat};
     use crate::error::Error;
     use crate::fixed::elu::expm1_neg_q31;
     use crate::ops::contract::{
@@ -234,18 +245,18 @@ pub(crate) mod case {
     /// An RBF layer as plain integers.
     #[derive(Clone, Debug)]
     pub(crate) struct Rbf {
-        rows: Rows,
+        pub(crate) rows: Rows,
         /// `experts x out x in` centres, expert-major.
-        c: Vec<i32>,
+        pub(crate) c: Vec<i32>,
         /// `experts x out` `(multiplier, shift)`.
-        scales: Vec<(u32, u8)>,
+        pub(crate) scales: Vec<(u32, u8)>,
         /// `in` alignment shifts (may be out of range in twins).
-        align: Vec<u8>,
+        pub(crate) align: Vec<u8>,
     }
 
     impl Rbf {
         /// `D` of stored row `row` at `x`, exactly.
-        fn d2(&self, row: usize, x: &[i16]) -> i128 {
+        pub(crate) fn d2(&self, row: usize, x: &[i16]) -> i128 {
             let n = self.rows.shape.in_dim;
             (0..n)
                 .map(|i| {
@@ -255,8 +266,8 @@ pub(crate) mod case {
                 .sum()
         }
 
-        /// `pos = floor(D m / 2^s)`, saturated to u64.
-        fn pos(&self, row: usize, x: &[i16]) -> (u64, f64) {
+        /// `pos = floor(D m / 2^s)`, saturated to u64, and the real `u`.
+        pub(crate) fn pos(&self, row: usize, x: &[i16]) -> (u64, f64) {
             let (m, s) = self.scales[row];
             let p = (self.d2(row, x) * i128::from(m)) >> s;
             let u = self.d2(row, x) as f64 * f64::from(m) / 2f64.powi(i32::from(s) + 22);
@@ -283,7 +294,7 @@ pub(crate) mod case {
 
         /// The largest alignment shift (same for every input) that the
         /// proof accepts for these centres, capped at 15.
-        fn widest_align(&self) -> u8 {
+        pub(crate) fn widest_align(&self) -> u8 {
             let n = self.rows.shape.in_dim;
             (0..=MAX_ALIGN)
                 .rev()
@@ -297,12 +308,9 @@ pub(crate) mod case {
                 })
                 .unwrap_or(0)
         }
-    }
 
-    impl OpCase for Rbf {
-        type Op<'a> = RbfLayer<'a>;
-
-        fn random(rng: &mut Rng, mut shape: Shape, _gating: Gating) -> Self {
+        /// A random layer of `shape`'s rows, its centres int16.
+        pub(crate) fn random_centres(rng: &mut Rng, mut shape: Shape) -> Rbf {
             shape.weights = WeightFormat::I16;
             let rows = shape.experts * shape.out_dim;
             let c = shape.weights(rng, rows * shape.in_dim);
@@ -336,15 +344,17 @@ pub(crate) mod case {
             }
         }
 
-        fn rows(&self) -> &Rows {
-            &self.rows
-        }
-
-        fn encode(&self, p: &mut Payload) -> LayerDesc {
-            let mut d = self.rows.shape.desc(LayerOp::Rbf {
-                scales: Default::default(),
-                align: Default::default(),
-            });
+        /// Its sections (centres, scales, alignment, rows) under the header
+        /// variant `op` makes of the scales and alignment sections.
+        pub(crate) fn encode_as(
+            &self,
+            p: &mut Payload,
+            op: impl Fn(Section, Section) -> LayerOp,
+        ) -> LayerDesc {
+            let mut d = self
+                .rows
+                .shape
+                .desc(op(Section::default(), Section::default()));
             d.weight_section = p.weights(&self.c, d.weights);
             let scales = p.push(
                 &self
@@ -354,9 +364,25 @@ pub(crate) mod case {
                     .collect::<Vec<_>>(),
             );
             let align = p.push(&self.align);
-            d.op = LayerOp::Rbf { scales, align };
+            d.op = op(scales, align);
             self.rows.encode(p, &mut d);
             d
+        }
+    }
+
+    impl OpCase for Rbf {
+        type Op<'a> = RbfLayer<'a>;
+
+        fn random(rng: &mut Rng, shape: Shape, _gating: Gating) -> Self {
+            Rbf::random_centres(rng, shape)
+        }
+
+        fn rows(&self) -> &Rows {
+            &self.rows
+        }
+
+        fn encode(&self, p: &mut Payload) -> LayerDesc {
+            self.encode_as(p, |scales, align| LayerOp::Rbf { scales, align })
         }
 
         /// `y_j = act(requant(sum_k g_k (psi_kj + b_kj)))`, `psi` from `D`
