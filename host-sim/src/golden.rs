@@ -10,6 +10,7 @@
 //! | `cp-diagonal` | a synthetic 48 -> 40 -> 40 -> 24 network | CP (rank 12), diagonal, CP (rank 6) | int8 |
 //! | `omg-tiny-fe-r1` | the trained tiny FE-OMG model (`models/omg/tiny_fe_r1`, `host-sim demo`'s), 440 -> 404, on its first 64 reference frames | dense x15 (MLPs, 4-expert layers), softmax gate | int8 |
 //! | `omg-small-rbfcat-r1` | the committed small RBF-CAT OMG model (`models/omg/small_rbfcat_r1`), 440 -> 404, on the first 64 frames of its reference rollout | dense x15, RBF (16 clusters over the 64-wide latent), softmax gate | int8 (RBF centres int16) |
+//! | `dec-graph` | a synthetic graph with OMG's DEC clustering layer (`synthetic::clustering_net`: encoder 6 -> 32, soft assignment to 16 centres, head on `[q, z]` -> 5) | dense x2, DEC | int8 (DEC centres int16) |
 //! | `softmax-graph` | the branching proof model (`synthetic::branching_net`: gating MLP -> softmax; two encoders -> concatenation -> three softmax-gated layers -> decoder on a slice), 40 -> 10 | dense x12, softmax gate | int8 |
 //!
 //! Regenerate them all (after a deliberate change to the arithmetic) with
@@ -34,13 +35,14 @@ pub const FRAMES: usize = 64;
 /// Seed of the golden inputs.
 pub const INPUT_SEED: u64 = 0x601D_0001;
 /// Every case, by directory name.
-pub const CASES: [&str; 6] = [
+pub const CASES: [&str; 7] = [
     "default",
     "dense-int16",
     "cp-diagonal",
     "softmax-graph",
     OMG_CASE,
     RBF_CASE,
+    DEC_CASE,
 ];
 
 /// The trained OMG model `host-sim demo` runs (its float source is the
@@ -53,6 +55,11 @@ pub const OMG_CASE: &str = "omg-tiny-fe-r1";
 /// reference rollout.
 pub const RBF_CASE: &str = "omg-small-rbfcat-r1";
 
+/// The DEC op's case: no DEC model is trained, so a synthetic graph made
+/// in code ([`synthetic::clustering_net`]; no `model.npz`: graph
+/// descriptions have no clustering ops), on normal inputs.
+pub const DEC_CASE: &str = "dec-graph";
+
 /// The committed model directory of [`RBF_CASE`].
 fn rbf_case_model() -> std::path::PathBuf {
     crate::target::build::repo_root().join("models/omg/small_rbfcat_r1")
@@ -60,7 +67,7 @@ fn rbf_case_model() -> std::path::PathBuf {
 
 /// The files of a bundle.
 pub fn files(case: &str) -> &'static [&'static str] {
-    if case == OMG_CASE || case == RBF_CASE {
+    if [OMG_CASE, RBF_CASE, DEC_CASE].contains(&case) {
         &[
             "model.blob",
             "inputs.npy",
@@ -115,6 +122,9 @@ pub fn write_case(case: &str, dir: &Path) -> Result<()> {
     if case == RBF_CASE {
         return write_rbf_case(dir);
     }
+    if case == DEC_CASE {
+        return write_dec_case(dir);
+    }
     let (net, opts) = case_source(case)?;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let npz = dir.join("model.npz");
@@ -143,6 +153,15 @@ fn write_omg_case(dir: &Path) -> Result<()> {
     exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
     let x = crate::demo_omg::reference_frames(FRAMES)?;
     write_frames(dir, &blob, &x, &vec![0f32; x.rows])
+}
+
+fn write_dec_case(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let net = synthetic::clustering_net(0x601D_0DEC, 32, 16, true);
+    let (blob, _) = export(&net, None, &QuantOptions::default())?;
+    exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
+    let (x, p) = sample_matrix(&net, FRAMES, 1.0, INPUT_SEED);
+    write_frames(dir, &blob, &x, &p)
 }
 
 fn write_rbf_case(dir: &Path) -> Result<()> {

@@ -52,6 +52,7 @@ fn the_bundles_cover_every_op_kind() {
         "Cp",
         "Diagonal",
         "Rbf",
+        "Dec",
         "Softmax",
         "I8",
         "I8Interleaved",

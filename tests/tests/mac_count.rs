@@ -58,7 +58,7 @@ fn every_model_kind_performs_exactly_the_header_macs() {
             );
         }
     }
-    for k in ["Dense", "Cp", "Diagonal", "Rbf", "Softmax"] {
+    for k in ["Dense", "Cp", "Diagonal", "Rbf", "Dec", "Softmax"] {
         assert!(kinds.contains(k), "no {k} node among the blobs: {kinds:?}");
     }
 }
