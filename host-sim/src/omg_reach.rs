@@ -21,7 +21,7 @@ use serde::Serialize;
 use crate::omg::{diff, load_dir, rollout, Diff, FixedOmg, FloatOmg, Mode, OmgDir};
 use crate::quant_knobs::Int8Knobs;
 use exporter::net::omg::OmgConfig;
-use exporter::quantise::QuantOptions;
+use exporter::quantise::{QuantOptions, Recorded};
 
 /// The data's contact threshold: a hand this close to its target reached it.
 pub const CONTACT_RADIUS_M: f64 = 0.1;
@@ -279,6 +279,56 @@ fn rollouts(
         .collect()
 }
 
+/// The float model's grounded rollouts of the first `n` training clips of
+/// `rig` (`data/<rig>/train.npy`), every frame's network input as a
+/// calibration row (f32-rounded, as a file would hold them; phase 0: the
+/// OMG graph's gates are softmax nodes).
+pub fn train_rollouts(d: &OmgDir, data: &Path, rig: &str, n: usize) -> Result<Recorded> {
+    if n == 0 {
+        bail!("--calibration-clips must be at least 1");
+    }
+    let path = data.join(rig).join("train.npy");
+    let width = d.omg.config.model_width;
+    let (shape, values) = crate::npy::read_array_f32(&path)?;
+    let [clips, t, w] = shape[..] else {
+        bail!(
+            "{}: shape {shape:?}, expected (clips, frames, width)",
+            path.display()
+        );
+    };
+    if w < width || clips < n {
+        bail!(
+            "{}: {clips} clips of width {w}; --calibration-clips {n} needs {n} of width {width}",
+            path.display()
+        );
+    }
+    let train = HeldOut {
+        clips: (0..n)
+            .map(|c| {
+                (0..t)
+                    .map(|f| {
+                        values[(c * t + f) * w..][..width]
+                            .iter()
+                            .map(|&v| f64::from(v))
+                            .collect()
+                    })
+                    .collect()
+            })
+            .collect(),
+        reps: vec![0; n],
+    };
+    let inputs: Vec<Vec<f64>> = rollouts(d, &train, &mut FloatOmg(&d.omg))?
+        .concat()
+        .iter()
+        .map(|row| row.iter().map(|v| f64::from(*v as f32)).collect())
+        .collect();
+    let phases = vec![0.0; inputs.len()];
+    Ok(Recorded {
+        source: format!("{n} training clips of {rig}, grounded f64 rollouts"),
+        samples: std::sync::Arc::new(exporter::calibrate::Samples { inputs, phases }),
+    })
+}
+
 /// The rig named in `dir`'s `config.json`.
 pub(crate) fn rig_of(dir: &Path) -> Result<String> {
     let path = dir.join("config.json");
@@ -307,7 +357,11 @@ pub fn measure(dir: &Path, data: &Path, opts: &QuantOptions, int8: &Int8Knobs) -
         weights: WeightFormat::I8,
         ..opts.clone()
     };
-    let (int8, _) = int8.export(&d.omg.net, None, int8_opts)?;
+    let recorded = int8
+        .calibration_clips
+        .map(|n| train_rollouts(&d, data, &rig, n))
+        .transpose()?;
+    let (int8, _) = int8.export_with(&d.omg.net, None, int8_opts, recorded)?;
     let flat = |v: &[Vec<Vec<f64>>]| v.concat();
     for (name, blob) in [("int16", &int16), ("int8", &int8)] {
         let mut fx = FixedOmg::new(blob)?;

@@ -40,6 +40,15 @@ pub struct Int8Knobs {
     /// Seed of --calibration-tours.
     #[arg(long, default_value_t = 1, requires = "calibration_tours")]
     pub tour_seed: u64,
+    /// OMG models (`omg-reach`): instead of a file, the float model's
+    /// grounded rollouts of the first N training clips of its rig (from
+    /// `--data`; the held-out clips it is judged on are never used).
+    #[arg(
+        long,
+        value_name = "N",
+        conflicts_with_all = ["calibration", "calibration_tours"]
+    )]
+    pub calibration_clips: Option<usize>,
     /// The share of error-aware rounding's objective that the
     /// --calibration rows carry (exporter --calibration-weight).
     #[arg(long, value_name = "SHARE")]
@@ -91,7 +100,18 @@ impl Int8Knobs {
         residual: Option<Residual>,
         opts: QuantOptions,
     ) -> Result<(Vec<u8>, ExportReport)> {
-        let opts = self.apply(net, opts)?;
+        self.export_with(net, residual, opts, None)
+    }
+
+    /// [`Int8Knobs::export`] with `recorded` rows ([`Int8Knobs::apply_with`]).
+    pub fn export_with(
+        &self,
+        net: &Net,
+        residual: Option<Residual>,
+        opts: QuantOptions,
+        recorded: Option<Recorded>,
+    ) -> Result<(Vec<u8>, ExportReport)> {
+        let opts = self.apply_with(net, opts, recorded)?;
         Ok(match self.int16_budget {
             Some(b) => {
                 exporter::budget::export_with_int16_budget(net, residual, &opts, b, |_, _| {})?
@@ -102,19 +122,30 @@ impl Int8Knobs {
 
     /// `opts` with these knobs applied.
     pub fn apply(&self, net: &Net, opts: QuantOptions) -> Result<QuantOptions> {
+        self.apply_with(net, opts, None)
+    }
+
+    /// [`Int8Knobs::apply`], with `recorded` rows made by the caller (as
+    /// `--calibration-clips` asks) in place of a file or tours.
+    pub fn apply_with(
+        &self,
+        net: &Net,
+        opts: QuantOptions,
+        recorded: Option<Recorded>,
+    ) -> Result<QuantOptions> {
         let compensation_samples =
             exporter::cli_args::compensation_samples(net, self.rounding, self.compensation_samples)
                 .map_err(anyhow::Error::msg)?;
         let calibration_weight = exporter::cli_args::calibration_weight(
             self.calibration_weight,
-            self.calibration.is_some() || self.calibration_tours.is_some(),
+            self.calibration.is_some() || self.calibration_tours.is_some() || recorded.is_some(),
             compensation_samples,
         )
         .map_err(anyhow::Error::msg)?;
         let calibration_data = match (&self.calibration, self.calibration_tours) {
             (Some(p), _) => Some(Recorded::read(p, net.input_dim())?),
             (None, Some(n)) => Some(tour_rollouts(net, n, self.tour_seed)?),
-            (None, None) => None,
+            (None, None) => recorded,
         };
         Ok(QuantOptions {
             compensation_samples,

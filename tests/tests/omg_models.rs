@@ -267,3 +267,64 @@ fn the_f32_reaching_loop_over_the_runtime_follows_the_host_loop() {
     );
     assert!(worst < 1e-3, "{worst}");
 }
+
+/// `omg-reach --calibration-clips N`: the int8 blob's recorded calibration
+/// rows are the f64 model's grounded rollouts of the first N *training*
+/// clips (never the held-out ones it is judged on): 300 rows per clip of
+/// the model's width, each clip's first row its data frame 0, f32-rounded;
+/// 0 clips or more than the split holds are refused, naming the file. The
+/// measured int8 figures are printed (`docs/omg.md`, "int8 and the
+/// closed loop"). Needs the data set, as the test above.
+#[test]
+fn reach_calibration_rollouts_come_from_the_training_clips() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let data = root.join("data/omg");
+    if !data.join("R1/train.npy").exists() {
+        eprintln!(
+            "OMG data set absent at {}: calibration rollouts not checked \
+             (python3 -m tools.omg.generate --out data/omg --seed 0 --rigs R1,R4)",
+            data.display()
+        );
+        return;
+    }
+    let d = load_dir(&model_dir("tiny_fe_r1")).unwrap();
+    let width = d.omg.config.model_width;
+    let rec = host_sim::omg_reach::train_rollouts(&d, &data, "R1", 3).unwrap();
+    let rows = &rec.samples.inputs;
+    assert_eq!(rows.len(), 3 * 300);
+    assert_eq!(rec.samples.phases, vec![0.0; rows.len()]);
+    assert!(rows.iter().all(|r| r.len() == width
+        && r.iter()
+            .all(|v| v.is_finite() && *v == f64::from(*v as f32))));
+    let (shape, train) = host_sim::npy::read_array_f32(&data.join("R1/train.npy")).unwrap();
+    let w = shape[2];
+    for c in 0..3 {
+        let frame0: Vec<f64> = train[c * shape[1] * w..][..width]
+            .iter()
+            .map(|&v| f64::from(v))
+            .collect();
+        assert_eq!(rows[c * 300], frame0, "clip {c}");
+    }
+    for n in [0, shape[0] + 1] {
+        let e = host_sim::omg_reach::train_rollouts(&d, &data, "R1", n)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("at least 1") || e.contains("train.npy"),
+            "{n}: {e}"
+        );
+    }
+    let knobs = host_sim::quant_knobs::Int8Knobs {
+        rounding: Some(exporter::cli_args::RoundingArg::Compensated),
+        calibration_clips: Some(48),
+        ..Default::default()
+    };
+    let opts = QuantOptions {
+        headroom: HEADROOM,
+        ..QuantOptions::default()
+    };
+    let r = host_sim::omg_reach::measure(&model_dir("tiny_fe_r1"), &data, &opts, &knobs).unwrap();
+    eprint!("{}", r.table());
+    let int8 = r.rows.iter().find(|x| x.run == "int8").unwrap();
+    assert_eq!(int8.vs_f64.as_ref().unwrap().frames, r.clips * 300);
+}
