@@ -3,7 +3,8 @@
 //!
 //! - `inference_core`: `firmware/src/bin/inference_core.rs`, the smallest
 //!   firmware that validates a blob and runs frames (every op compiled
-//!   in, no log, no styles, no controller);
+//!   in, the DEC op's `dec` feature included; no log, no styles, no
+//!   controller);
 //! - `firmware`: the full QEMU firmware (`host-sim target`'s);
 //! - `controller_firmware`: the full firmware with the locomotion loop
 //!   (`--features controller`).
@@ -11,7 +12,8 @@
 //! Sizes come from the ELF sections; the stack high-water from QEMU runs
 //! (the firmware paints its stack at boot): the inference core and the
 //! firmware on every golden model in `tests/golden` (each run checked bit
-//! for bit against the host runtime), the controller firmware on the
+//! for bit against the host runtime; the firmware, without the DEC op,
+//! skips the DEC graph), the controller firmware on the
 //! golden default model's `walk` loop.
 
 use std::fmt::Write as _;
@@ -47,9 +49,11 @@ pub mod bars {
 /// is TODAY'S MEASURED CEILING (marked so), which keeps it from growing:
 /// lower it to the bar (`bars::*`) in one line once it fits.
 pub const TEXT_BUDGETS: Budgets = Budgets {
-    // CEILING, not the bar (24 KiB): 34,484 B measured 2026-12-01 in
-    // /work/main (34,944 B the same in a fresh clone before the last
-    // change), after the 64-bit division routines went (the softmax
+    // CEILING, not the bar (24 KiB): 37,288 B measured 2026-12-01 with
+    // the DEC op compiled in (its kernel and the 64-bit division routines
+    // it brings back: 2,804 B); 34,484 B before it in /work/main (34,944 B
+    // the same in a fresh clone before the last change), after the 64-bit
+    // division routines went (the softmax
     // gate's coefficients by a short restoring division, the dense
     // blend's limit by a shift), the ELU moved to 32-bit words and the
     // float-to-i64 conversions to i32 ones; 36,140
@@ -57,7 +61,7 @@ pub const TEXT_BUDGETS: Budgets = Budgets {
     // built for size, 45,576 B and 51,276 B before that. The checkout's
     // path moves the code layout by up to about 100 B, so the ceiling is
     // the figure plus about 150 B.
-    inference_core: 34_650,
+    inference_core: 37_440,
     // The bar: 45,956 B measured 2026-12-01 (47,740 B on 2026-11-30,
     // 48,980 B before the format crate and the RBF op, 60,408 B before the
     // size profile).
@@ -256,6 +260,13 @@ pub fn measure() -> Result<FootprintReport> {
     let mut fw_elf = None;
     for m in &models {
         core_stack_max = core_stack_max.max(core_stack(&core_path, &core, m)?);
+        // A DEC graph runs on the reach build (`host-sim target`), whose
+        // stack is not the firmware's.
+        let blob = exporter::atomic::read_input(m)
+            .with_context(|| format!("cannot read the model blob {}", m.display()))?;
+        if crate::target::run::has_dec_node(&blob) {
+            continue;
+        }
         let r = execute(&TargetArgs {
             model: m.clone(),
             frames: Some(FRAMES),

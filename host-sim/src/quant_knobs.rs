@@ -133,6 +133,12 @@ impl Int8Knobs {
         opts: QuantOptions,
         recorded: Option<Recorded>,
     ) -> Result<QuantOptions> {
+        if self.calibration_clips.is_some() && recorded.is_none() {
+            anyhow::bail!(
+                "--calibration-clips is for OMG models (host-sim omg-reach); \
+                 here use --calibration FILE or --calibration-tours N"
+            );
+        }
         let compensation_samples =
             exporter::cli_args::compensation_samples(net, self.rounding, self.compensation_samples)
                 .map_err(anyhow::Error::msg)?;
@@ -158,5 +164,32 @@ impl Int8Knobs {
                 .collect(),
             ..opts
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--calibration-clips` needs the OMG data set, which only
+    /// `omg-reach` reads: elsewhere it is refused, not ignored.
+    #[test]
+    fn calibration_clips_are_refused_where_no_clips_are_read() {
+        let net = crate::target::synthetic::rbf_net(5);
+        let knobs = Int8Knobs {
+            calibration_clips: Some(3),
+            ..Int8Knobs::default()
+        };
+        let e = knobs
+            .apply(&net, QuantOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("--calibration-clips is for OMG models"),
+            "{e}"
+        );
+        assert!(Int8Knobs::default()
+            .apply(&net, QuantOptions::default())
+            .is_ok());
     }
 }

@@ -498,9 +498,10 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
     })
 }
 
-/// Whether `blob` (a motion or graph blob) has a DEC layer node, which only
-/// the reach build of the firmware runs.
-fn has_dec_node(blob: &[u8]) -> bool {
+/// Whether `blob` (a motion or graph blob) has a DEC layer node, which
+/// the reach build of the firmware runs (and the inference core), not the
+/// QEMU firmware.
+pub(crate) fn has_dec_node(blob: &[u8]) -> bool {
     phasegate::Model::from_bytes(blob).is_ok_and(|m| {
         m.header().nodes.iter().any(|n| {
             n.layer()
