@@ -76,20 +76,24 @@ impl HeldOut {
                     })?
                     .reps;
                 out.reps.push(reps);
-                out.clips.push(
-                    (0..t)
-                        .map(|f| {
-                            data[(c * t + f) * w..][..width]
-                                .iter()
-                                .map(|&v| f64::from(v))
-                                .collect()
-                        })
-                        .collect(),
-                );
+                out.clips.push(clip_rows(&data, c, t, w, width));
             }
         }
         Ok(out)
     }
+}
+
+/// Clip `c`'s `t` frames of a `(clips, t, w)` array, their first `width`
+/// columns.
+fn clip_rows(data: &[f32], c: usize, t: usize, w: usize, width: usize) -> Vec<Vec<f64>> {
+    (0..t)
+        .map(|f| {
+            data[(c * t + f) * w..][..width]
+                .iter()
+                .map(|&v| f64::from(v))
+                .collect()
+        })
+        .collect()
 }
 
 /// `[start, end)` of the first `reps` constant-target intervals of one
@@ -303,18 +307,7 @@ pub fn train_rollouts(d: &OmgDir, data: &Path, rig: &str, n: usize) -> Result<Re
         );
     }
     let train = HeldOut {
-        clips: (0..n)
-            .map(|c| {
-                (0..t)
-                    .map(|f| {
-                        values[(c * t + f) * w..][..width]
-                            .iter()
-                            .map(|&v| f64::from(v))
-                            .collect()
-                    })
-                    .collect()
-            })
-            .collect(),
+        clips: (0..n).map(|c| clip_rows(&values, c, t, w, width)).collect(),
         reps: vec![0; n],
     };
     let inputs: Vec<Vec<f64>> = rollouts(d, &train, &mut FloatOmg(&d.omg))?

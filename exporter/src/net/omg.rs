@@ -1017,20 +1017,30 @@ mod tests {
         (cfg, arrays)
     }
 
-    #[test]
-    fn dec_cat_puts_q_in_front_of_every_expert_layer() {
-        let (cfg, arrays) = tiny_dec_cat(6, 4);
-        let m = net_from_omg(&cfg, &arrays).unwrap();
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    /// The imported graph's f64 step equals [`reference`] on 20 random
+    /// inputs of `seed`.
+    fn assert_graph_matches_reference(
+        cfg: &OmgConfig,
+        arrays: &BTreeMap<String, NpArray>,
+        seed: u64,
+    ) {
+        let m = net_from_omg(cfg, arrays).unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         for _ in 0..20 {
             let x: Vec<f64> = (0..cfg.model_width)
                 .map(|_| rng.gen_range(-2.0..2.0))
                 .collect();
-            let want = reference(&cfg, &arrays, &x);
+            let want = reference(cfg, arrays, &x);
             for (i, (g, w)) in m.step(&x).iter().zip(&want).enumerate() {
                 assert!((g - w).abs() < 1e-12, "{i}: {g} vs {w}");
             }
         }
+    }
+
+    #[test]
+    fn dec_cat_puts_q_in_front_of_every_expert_layer() {
+        let (cfg, arrays) = tiny_dec_cat(6, 4);
+        assert_graph_matches_reference(&cfg, &arrays, 7);
         let mut a = arrays.clone();
         a.get_mut("dec.centres").unwrap().shape = vec![3, 4];
         assert!(err(&cfg, &a).contains("dec.centres"), "{}", err(&cfg, &a));
@@ -1042,17 +1052,7 @@ mod tests {
     #[test]
     fn rbf_cat_puts_psi_in_front_of_every_expert_layer() {
         let (cfg, arrays) = tiny_rbf_cat(4, 3);
-        let m = net_from_omg(&cfg, &arrays).unwrap();
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        for _ in 0..20 {
-            let x: Vec<f64> = (0..cfg.model_width)
-                .map(|_| rng.gen_range(-2.0..2.0))
-                .collect();
-            let want = reference(&cfg, &arrays, &x);
-            for (i, (g, w)) in m.step(&x).iter().zip(&want).enumerate() {
-                assert!((g - w).abs() < 1e-12, "{i}: {g} vs {w}");
-            }
-        }
+        assert_graph_matches_reference(&cfg, &arrays, 5);
         let mut c = cfg.clone();
         c.sizes.clusters = 0;
         assert!(err(&c, &arrays).contains("needs sizes.clusters > 0"));

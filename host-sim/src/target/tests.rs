@@ -749,24 +749,32 @@ fn whole_cp_model_is_bit_exact_on_the_target() {
         ),
         "{ops:?}"
     );
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("cp.blob");
-    std::fs::write(&path, &blob).unwrap();
-    let report = execute(&TargetArgs {
-        model: path,
-        frames: Some(8),
-        ..TargetArgs::default()
-    })
-    .unwrap();
-    println!("{}", report.render());
-    assert!(report.bit_exact(), "{}", report.render());
-    assert_eq!(report.frames, 8);
+    let report = run_bit_exact(&blob, 8);
     assert_eq!(
         u64::from(report.macs_per_frame),
         16 * (40 + 48 + 4) + 4 * 48 + 8 * (48 + 12 + 4)
     );
     assert!(report.infer_instructions.min > 0);
     report.check_budgets().unwrap();
+}
+
+/// Runs `blob` for `frames` generated frames under QEMU (from a temporary
+/// file, as `host-sim target --model` does) and checks that every frame is
+/// bit-exact with the host runtime.
+fn run_bit_exact(blob: &[u8], frames: usize) -> TargetReport {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("model.blob");
+    std::fs::write(&path, blob).unwrap();
+    let report = execute(&TargetArgs {
+        model: path,
+        frames: Some(frames),
+        ..TargetArgs::default()
+    })
+    .unwrap();
+    println!("{}", report.render());
+    assert!(report.bit_exact(), "{}", report.render());
+    assert_eq!(report.frames, frames);
+    report
 }
 
 /// OMG's DEC op on the Cortex-M4: graphs with a DEC node (3 centres over a
@@ -788,19 +796,8 @@ fn dec_graphs_are_bit_exact_on_the_reach_firmware() {
             let (blob, _) =
                 exporter::export::export(&net, None, &exporter::quantise::QuantOptions::default())
                     .unwrap();
-            let dir = tempfile::tempdir().unwrap();
-            let path = dir.path().join("clustering.blob");
-            std::fs::write(&path, &blob).unwrap();
-            let report = execute(&TargetArgs {
-                model: path,
-                frames: Some(8),
-                ..TargetArgs::default()
-            })
-            .unwrap();
-            println!("{}", report.render());
+            let report = run_bit_exact(&blob, 8);
             assert_eq!(report.reach_build, dec, "{}", report.render());
-            assert!(report.bit_exact(), "{}", report.render());
-            assert_eq!(report.frames, 8);
             assert_eq!(
                 u64::from(report.macs_per_frame),
                 (6 * latent + clusters * latent + (clusters + latent) * 5) as u64
