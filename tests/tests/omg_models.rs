@@ -314,10 +314,38 @@ fn reach_calibration_rollouts_come_from_the_training_clips() {
             "{n}: {e}"
         );
     }
-    let knobs = host_sim::quant_knobs::Int8Knobs {
+    // The same rows through a file (`host-sim rollout-dataset --omg DIR
+    // --clips 3`, what `exporter omg --calibration` reads): the same
+    // rows, and the same int8 blob as the in-memory ones give.
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("omg-rollouts.npz");
+    host_sim::rollout::dataset::omg_dataset(&model_dir("tiny_fe_r1"), &data, 3, &file).unwrap();
+    let read = exporter::quantise::Recorded::read(&file, width).unwrap();
+    assert_eq!(&read.samples.inputs, rows);
+    let int8 = QuantOptions {
+        weights: WeightFormat::I8,
+        headroom: HEADROOM,
+        ..QuantOptions::default()
+    };
+    let compensated = host_sim::quant_knobs::Int8Knobs {
         rounding: Some(exporter::cli_args::RoundingArg::Compensated),
-        calibration_clips: Some(48),
         ..Default::default()
+    };
+    let from_file = host_sim::quant_knobs::Int8Knobs {
+        calibration: Some(file.clone()),
+        ..compensated.clone()
+    }
+    .export(&d.omg.net, None, int8.clone())
+    .unwrap()
+    .0;
+    let in_memory = compensated
+        .export_with(&d.omg.net, None, int8, Some(rec))
+        .unwrap()
+        .0;
+    assert!(from_file == in_memory, "the file's blob differs");
+    let knobs = host_sim::quant_knobs::Int8Knobs {
+        calibration_clips: Some(48),
+        ..compensated
     };
     let opts = QuantOptions {
         headroom: HEADROOM,

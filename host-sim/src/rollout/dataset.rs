@@ -22,7 +22,7 @@ use anyhow::{bail, Context, Result};
 use exporter::cp::distill::{DATA_INPUTS, DATA_PHASES};
 use exporter::net::{GatingMode, Net};
 use std::f64::consts::TAU;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use super::{load_reference, Script};
 use crate::controller::{reference_f64, Controller};
@@ -34,8 +34,21 @@ pub const DEFAULT_SCRIPTS: &str = "walk,circle-left,zigzag,jog-stop-jog,crouch-w
 #[derive(Debug, clap::Args)]
 pub struct RolloutDatasetArgs {
     /// The dense float model: a PFNN weight directory or a PFNN-shaped .npz.
-    #[arg(long)]
-    pub pfnn: PathBuf,
+    #[arg(long, required_unless_present = "omg")]
+    pub pfnn: Option<PathBuf>,
+    /// Instead of a PFNN: an OMG model directory (model.safetensors,
+    /// config.json, references.npz). The rows are its f64 grounded
+    /// rollouts of the first --clips training clips of its rig (from
+    /// --data), the rows `omg-reach --calibration-clips` uses and
+    /// `exporter omg --calibration` takes.
+    #[arg(long, conflicts_with_all = ["pfnn", "scripts", "tours"], requires = "clips")]
+    pub omg: Option<PathBuf>,
+    /// Training clips of --omg's rollouts.
+    #[arg(long, requires = "omg")]
+    pub clips: Option<usize>,
+    /// The OMG data set (`python3 -m tools.omg.generate --out DIR`).
+    #[arg(long, default_value = "data/omg")]
+    pub data: PathBuf,
     /// Gating of the float model: constant, linear or cubic.
     #[arg(long, default_value = "cubic")]
     pub gating: GatingMode,
@@ -135,8 +148,39 @@ pub fn collect(net: &Net, scripts: &[Script], frames: usize) -> Result<RolloutDa
     Ok(d)
 }
 
+/// The OMG model in `dir` rolled out over `n` training clips of its rig
+/// (`omg_reach::train_rollouts`), written to `out` as a rollout data set
+/// (`script` is the clip, `frame` the frame; phases 0).
+pub fn omg_dataset(dir: &Path, data: &Path, n: usize, out: &Path) -> Result<RolloutDataset> {
+    let d = crate::omg::load_dir(dir)?;
+    let rig = crate::omg_reach::rig_of(dir)?;
+    let rec = crate::omg_reach::train_rollouts(&d, data, &rig, n)?;
+    let rows = rec.samples.inputs.len();
+    let frames = rows / n;
+    let set = RolloutDataset {
+        inputs: rec.samples.inputs.clone(),
+        phases: rec.samples.phases.clone(),
+        script: (0..rows).map(|r| r / frames).collect(),
+        frame: (0..rows).map(|r| r % frames).collect(),
+    };
+    exporter::npz::write_npz(out, &set.arrays())?;
+    println!(
+        "wrote {}: {rows} rows ({n} training clips of {rig} x {frames} frames, f64 grounded rollouts of {}), arrays X ({rows}, {}), phase, script, frame",
+        out.display(),
+        dir.display(),
+        d.omg.config.model_width
+    );
+    Ok(set)
+}
+
 /// `host-sim rollout-dataset`: runs, writes the `.npz`, prints a summary.
 pub fn rollout_dataset_cmd(args: &RolloutDatasetArgs) -> Result<()> {
+    if let (Some(dir), Some(n)) = (&args.omg, args.clips) {
+        return omg_dataset(dir, &args.data, n, &args.out).map(drop);
+    }
+    let Some(pfnn) = &args.pfnn else {
+        bail!("give --pfnn DIR (or --omg DIR --clips N)");
+    };
     if args.frames == 0 {
         bail!("--frames must be at least 1");
     }
@@ -151,13 +195,13 @@ pub fn rollout_dataset_cmd(args: &RolloutDatasetArgs) -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     let seconds = args.frames as f64 / super::script::FRAME_RATE;
     scripts.extend((0..args.tours).map(|i| super::tour::tour(args.tour_seed, i, seconds)));
-    let net = load_reference(&args.pfnn, args.gating)?;
+    let net = load_reference(pfnn, args.gating)?;
     if net.input_dim() != phasegate_controller::layout::INPUTS
         || net.output_dim() != phasegate_controller::layout::OUTPUTS
     {
         bail!(
             "{}: the controller needs a PFNN-shaped model ({} inputs, {} outputs), this one has {} and {}",
-            args.pfnn.display(),
+            pfnn.display(),
             phasegate_controller::layout::INPUTS,
             phasegate_controller::layout::OUTPUTS,
             net.input_dim(),
