@@ -875,6 +875,11 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
             "omg-tiny-fe-r1.blob".into(),
             golden("omg-tiny-fe-r1/model.blob"),
         ));
+        v.push((
+            "model",
+            "dec-graph.blob".into(),
+            golden("dec-graph/model.blob"),
+        ));
     }
     // Styles: the small base followed by a CP, a diagonal and a full
     // adapter; and each alone after it.
