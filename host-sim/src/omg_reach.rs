@@ -289,7 +289,7 @@ fn rollouts(
 /// OMG graph's gates are softmax nodes).
 pub fn train_rollouts(d: &OmgDir, data: &Path, rig: &str, n: usize) -> Result<Recorded> {
     if n == 0 {
-        bail!("--calibration-clips must be at least 1");
+        bail!("the calibration rollouts need at least 1 training clip (0 asked for)");
     }
     let path = data.join(rig).join("train.npy");
     let width = d.omg.config.model_width;
@@ -302,7 +302,7 @@ pub fn train_rollouts(d: &OmgDir, data: &Path, rig: &str, n: usize) -> Result<Re
     };
     if w < width || clips < n {
         bail!(
-            "{}: {clips} clips of width {w}; --calibration-clips {n} needs {n} of width {width}",
+            "{}: {clips} clips of width {w}; {n} calibration clips of width {width} asked for",
             path.display()
         );
     }

@@ -41,7 +41,11 @@ pub struct RolloutDatasetArgs {
     /// rollouts of the first --clips training clips of its rig (from
     /// --data), the rows `omg-reach --calibration-clips` uses and
     /// `exporter omg --calibration` takes.
-    #[arg(long, conflicts_with_all = ["pfnn", "scripts", "tours"], requires = "clips")]
+    #[arg(
+        long,
+        conflicts_with_all = ["pfnn", "scripts", "tours", "frames", "gating"],
+        requires = "clips"
+    )]
     pub omg: Option<PathBuf>,
     /// Training clips of --omg's rollouts.
     #[arg(long, requires = "omg")]
