@@ -366,6 +366,14 @@ fn layer_arrays(op: &NetLayer, suffix: &str, bias_name: &str, out: &mut Arrays) 
             f32s(v.iter().flatten().copied()),
         )
     };
+    // One matrix per expert, `(experts, rows, cols)`.
+    let per_expert = |v: &[Array2<f64>]| {
+        let (r, c) = v.first().map_or((0, 0), Array2::dim);
+        (
+            vec![v.len() as u64, r as u64, c as u64],
+            f32s(v.iter().flatten().copied()),
+        )
+    };
     match op {
         NetLayer::Cp(l) => {
             for (n, m) in [("A", &l.a), ("B", &l.b), ("D", &l.d)] {
@@ -376,12 +384,8 @@ fn layer_arrays(op: &NetLayer, suffix: &str, bias_name: &str, out: &mut Arrays) 
             out.push((bias_name.to_string(), s, d));
         }
         NetLayer::Dense(l) => {
-            let (r, c) = l.w.first().map_or((0, 0), Array2::dim);
-            out.push((
-                format!("W{suffix}"),
-                vec![l.w.len() as u64, r as u64, c as u64],
-                f32s(l.w.iter().flatten().copied()),
-            ));
+            let (s, d) = per_expert(&l.w);
+            out.push((format!("W{suffix}"), s, d));
             let (s, d) = stack(&l.b);
             out.push((bias_name.to_string(), s, d));
         }
@@ -392,24 +396,16 @@ fn layer_arrays(op: &NetLayer, suffix: &str, bias_name: &str, out: &mut Arrays) 
             out.push((bias_name.to_string(), s, d));
         }
         NetLayer::Rbf(l) => {
-            let (r, c) = l.centres.first().map_or((0, 0), Array2::dim);
-            out.push((
-                format!("centres{suffix}"),
-                vec![l.centres.len() as u64, r as u64, c as u64],
-                f32s(l.centres.iter().flatten().copied()),
-            ));
+            let (s, d) = per_expert(&l.centres);
+            out.push((format!("centres{suffix}"), s, d));
             let (s, d) = stack(&l.sigma);
             out.push((format!("sigma{suffix}"), s, d));
             let (s, d) = stack(&l.b);
             out.push((bias_name.to_string(), s, d));
         }
         NetLayer::Dec(l) => {
-            let (r, c) = l.centres.first().map_or((0, 0), Array2::dim);
-            out.push((
-                format!("centres{suffix}"),
-                vec![l.centres.len() as u64, r as u64, c as u64],
-                f32s(l.centres.iter().flatten().copied()),
-            ));
+            let (s, d) = per_expert(&l.centres);
+            out.push((format!("centres{suffix}"), s, d));
             let (s, d) = stack(&l.b);
             out.push((bias_name.to_string(), s, d));
         }

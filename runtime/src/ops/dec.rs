@@ -44,7 +44,7 @@ pub struct DecLayer<'a> {
 /// The kernel `t = 2^31 (1 + u_nearest) / (1 + u)` of one expert, from
 /// the position of its nearest centre.
 #[derive(Clone, Copy, Debug)]
-pub struct Student {
+struct Student {
     /// `(a >> k) 2^31`, below `2^63`.
     top: u64,
     /// `k`.
@@ -53,7 +53,7 @@ pub struct Student {
 
 impl Student {
     /// The kernel relative to the nearest centre's position `nearest`.
-    pub fn new(nearest: u64) -> Student {
+    fn new(nearest: u64) -> Student {
         let a = nearest.saturating_add(ONE_POS);
         let shift = (u64::BITS - a.leading_zeros()).saturating_sub(32);
         Student {
@@ -63,7 +63,7 @@ impl Student {
     }
 
     /// `t` at position `pos` (at least the nearest's): at most `2^31`.
-    pub fn t(&self, pos: u64) -> u64 {
+    fn t(&self, pos: u64) -> u64 {
         // `pos + 2^22 >= a`, so the divisor is at least `a >> k >= 2^22`.
         self.top
             .checked_div(pos.saturating_add(ONE_POS) >> self.shift)
