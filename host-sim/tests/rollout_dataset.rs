@@ -114,6 +114,107 @@ fn dataset_is_deterministic_readable_and_the_controllers_inputs() {
     assert_eq!(all["X"].data, from_lib);
 }
 
+/// `--blob B`: the fixed-point controller of `B` runs the same scripts
+/// and its own inputs follow the float controller's rows.
+#[test]
+fn blob_rows_are_the_fixed_point_controllers_own_inputs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let m = tmp.path().join("calm.npz");
+    exporter::npz::pfnn_to_npz(&calm_model(), &m).unwrap();
+    let net = exporter::npz::pfnn_from_npz(&m, exporter::net::GatingMode::Cubic).unwrap();
+    let (blob, _) =
+        exporter::export::export(&net, None, &exporter::quantise::QuantOptions::default()).unwrap();
+    let b = tmp.path().join("calm.blob");
+    std::fs::write(&b, &blob).unwrap();
+    let out = tmp.path().join("d.npz");
+    let o = host_sim(&[
+        "rollout-dataset",
+        "--pfnn",
+        m.to_str().unwrap(),
+        "--scripts",
+        "idle",
+        "--tours",
+        "1",
+        "--frames",
+        "50",
+        "--blob",
+        b.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("200 rows (4 scripts x 50 frames)"), "{text}");
+    assert!(
+        text.contains("script 3: tour-1-0, the fixed-point controller of"),
+        "{text}"
+    );
+
+    let all = exporter::npz::read_npz(&out).unwrap();
+    let script_col: Vec<f64> = (0..200).map(|i| (i / 50) as f64).collect();
+    assert_eq!(all["script"].data, script_col);
+    let s = read_distill_data(&out, 342).unwrap();
+    // The first 100 rows are the float controller's, as without --blob.
+    let scripts = [
+        Script::builtin("idle").unwrap(),
+        Script::load("tour-1-0").unwrap(),
+    ];
+    let float = collect(&net, &scripts, 50).unwrap();
+    assert_eq!(
+        all["X"].data[..100 * 342],
+        float.arrays()[0]
+            .2
+            .iter()
+            .map(|&v| f64::from(v))
+            .collect::<Vec<_>>()[..]
+    );
+    // The rest, row by row, the device controller's inputs and phases.
+    let mut ctl = host_sim::controller::FixedController::new(&blob, "calm").unwrap();
+    for f in 0..50 {
+        let pose = ctl.step(&scripts[1].command(f)).unwrap();
+        let want: Vec<f64> = ctl
+            .inner()
+            .state()
+            .last_input()
+            .iter()
+            .map(|&v| f64::from(v))
+            .collect();
+        assert_eq!(s.inputs[150 + f], want, "frame {f}");
+        let p = f64::from((pose.phase * std::f64::consts::TAU) as f32);
+        assert_eq!(s.phases[150 + f], p, "frame {f}");
+    }
+    // Both loops start from the reset pose; after that fixed point is
+    // not float, and every later row differs.
+    for r in 0..100 {
+        let same = s.inputs[r] == s.inputs[100 + r];
+        assert_eq!(same, r % 50 == 0, "row {r}");
+    }
+
+    // A blob that is not one: one line naming it, nothing written.
+    let bad = tmp.path().join("bad.blob");
+    std::fs::write(&bad, b"not a blob").unwrap();
+    std::fs::remove_file(&out).unwrap();
+    let o = host_sim(&[
+        "rollout-dataset",
+        "--pfnn",
+        m.to_str().unwrap(),
+        "--frames",
+        "5",
+        "--blob",
+        bad.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let err = stderr(&o);
+    assert!(!o.status.success());
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("bad.blob") && err.contains("model blob"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}
+
 #[test]
 fn dataset_errors_are_one_line_and_write_nothing() {
     let tmp = tempfile::tempdir().unwrap();

@@ -15,8 +15,11 @@
 //! | `script` | (N,) | index of the row's script in `--scripts` |
 //! | `frame` | (N,) | frame of the row within its script |
 //!
-//! Rows are in script order, then frame order. The output depends only on
-//! the model and the arguments (same bytes on every run).
+//! Rows are in script order, then frame order. With `--blob B`, the
+//! fixed-point controller of blob `B` runs the same scripts too and its
+//! rows follow (script indices `S..2S` for `S` scripts): the inputs the
+//! quantised loop visits, which drift from the float loop's. The output
+//! depends only on the model and the arguments (same bytes on every run).
 
 use anyhow::{bail, Context, Result};
 use exporter::cp::distill::{DATA_INPUTS, DATA_PHASES};
@@ -43,7 +46,7 @@ pub struct RolloutDatasetArgs {
     /// `exporter omg --calibration` takes.
     #[arg(
         long,
-        conflicts_with_all = ["pfnn", "scripts", "tours", "frames", "gating"],
+        conflicts_with_all = ["pfnn", "scripts", "tours", "frames", "gating", "blob"],
         requires = "clips"
     )]
     pub omg: Option<PathBuf>,
@@ -57,7 +60,8 @@ pub struct RolloutDatasetArgs {
     #[arg(long, default_value = "cubic")]
     pub gating: GatingMode,
     /// Scripts, comma separated: built-in names (idle, walk, circle-left,
-    /// zigzag, jog-stop-jog, crouch-walk) or JSON script files (default:
+    /// zigzag, jog-stop-jog, crouch-walk), tour names (`tour-SEED-INDEX`)
+    /// or JSON script files (default:
     /// walk, circle-left, zigzag, jog-stop-jog, crouch-walk, unless
     /// --tours is given).
     #[arg(long, value_delimiter = ',')]
@@ -73,6 +77,11 @@ pub struct RolloutDatasetArgs {
     /// Frames of each script (60 per second).
     #[arg(long, default_value_t = 600)]
     pub frames: usize,
+    /// Also record the fixed-point controller of this blob over the same
+    /// scripts: the inputs the quantised loop itself visits (rows after
+    /// the float controller's, their script indices after its scripts).
+    #[arg(long)]
+    pub blob: Option<PathBuf>,
     /// Where to write the data set (.npz).
     #[arg(short = 'o', long = "out")]
     pub out: PathBuf,
@@ -92,6 +101,14 @@ pub struct RolloutDataset {
 }
 
 impl RolloutDataset {
+    /// Appends `other`'s rows.
+    pub fn extend(&mut self, other: RolloutDataset) {
+        self.inputs.extend(other.inputs);
+        self.phases.extend(other.phases);
+        self.script.extend(other.script);
+        self.frame.extend(other.frame);
+    }
+
     /// Rows.
     pub fn len(&self) -> usize {
         self.inputs.len()
@@ -146,6 +163,34 @@ pub fn collect(net: &Net, scripts: &[Script], frames: usize) -> Result<RolloutDa
             d.inputs.push(x.to_vec());
             d.phases.push(pose.phase * TAU);
             d.script.push(si);
+            d.frame.push(f);
+        }
+    }
+    Ok(d)
+}
+
+/// Runs the fixed-point controller of `blob` (the device's loop, on the
+/// host) for `frames` frames of each script, recording every network input
+/// and phase: the inputs the quantised loop itself visits, which drift
+/// away from the float controller's. Script indices start at
+/// `first_script`.
+pub fn collect_fixed(
+    blob: &[u8],
+    scripts: &[Script],
+    frames: usize,
+    first_script: usize,
+) -> Result<RolloutDataset> {
+    let mut d = RolloutDataset::default();
+    for (si, script) in scripts.iter().enumerate() {
+        let mut ctl = crate::controller::FixedController::new(blob, "fixed")?;
+        for f in 0..frames {
+            let pose = ctl
+                .step(&script.command(f))
+                .with_context(|| format!("script {} (blob): frame {f}", script.name))?;
+            let x = ctl.inner().state().last_input();
+            d.inputs.push(x.iter().map(|&v| f64::from(v)).collect());
+            d.phases.push(pose.phase * TAU);
+            d.script.push(first_script + si);
             d.frame.push(f);
         }
     }
@@ -212,19 +257,38 @@ pub fn rollout_dataset_cmd(args: &RolloutDatasetArgs) -> Result<()> {
             net.output_dim()
         );
     }
-    let d = collect(&net, &scripts, args.frames)?;
+    let mut d = collect(&net, &scripts, args.frames)?;
+    let runs = if let Some(b) = &args.blob {
+        let blob = std::fs::read(b).with_context(|| format!("cannot read {}", b.display()))?;
+        let fixed = collect_fixed(&blob, &scripts, args.frames, scripts.len())
+            .with_context(|| b.display().to_string())?;
+        d.extend(fixed);
+        2
+    } else {
+        1
+    };
     exporter::npz::write_npz(&args.out, &d.arrays())?;
     println!(
         "wrote {}: {} rows ({} scripts x {} frames), arrays X ({}, {}), phase, script, frame",
         args.out.display(),
         d.len(),
-        scripts.len(),
+        runs * scripts.len(),
         args.frames,
         d.len(),
         net.input_dim()
     );
     for (i, s) in scripts.iter().enumerate() {
         println!("  script {i}: {}", s.name);
+    }
+    if let Some(b) = &args.blob {
+        for (i, s) in scripts.iter().enumerate() {
+            println!(
+                "  script {}: {}, the fixed-point controller of {}",
+                scripts.len() + i,
+                s.name,
+                b.display()
+            );
+        }
     }
     // How far the controller's inputs are from the normal samples
     // (Xmean + Xstd N(0,1)): RMS of the normalised inputs, 1 for those.

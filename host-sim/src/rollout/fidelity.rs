@@ -345,7 +345,8 @@ pub struct FidelityArgs {
     /// Frames per script.
     #[arg(long, default_value_t = 600)]
     pub frames: usize,
-    /// Scripts (built-in names or JSON files); all built-ins if none.
+    /// Scripts (built-in names, tour names `tour-SEED-INDEX` or JSON
+    /// files); all built-ins if none.
     #[arg(long = "script")]
     pub scripts: Vec<String>,
     /// Write every rollout here as `<script>-<f64|f32|int16|int8>.npz`.

@@ -82,7 +82,8 @@ pub struct RolloutArgs {
     #[arg(long, value_enum, default_value = "f64")]
     pub precision: Precision,
     /// A built-in script (idle, walk, circle-left, zigzag, jog-stop-jog,
-    /// crouch-walk) or a JSON script file (format in docs/controller.md).
+    /// crouch-walk), a calibration tour (`tour-SEED-INDEX`) or a JSON
+    /// script file (format in docs/controller.md).
     #[arg(long)]
     pub script: String,
     /// Frames to run, 60 per second (default 600; with --omg the target

@@ -215,15 +215,19 @@ impl Script {
         Ok(s)
     }
 
-    /// A built-in name, or else a JSON file.
+    /// A built-in name, a calibration tour's name (`tour-SEED-INDEX`,
+    /// [`super::tour::by_name`]), or else a JSON file.
     pub fn load(name_or_path: &str) -> Result<Script> {
         if let Some(s) = Script::builtin(name_or_path) {
+            return Ok(s);
+        }
+        if let Some(s) = super::tour::by_name(name_or_path) {
             return Ok(s);
         }
         let path = Path::new(name_or_path);
         if !path.is_file() {
             bail!(
-                "{name_or_path} is neither a built-in script ({}) nor a file",
+                "{name_or_path} is neither a built-in script ({}), a tour (tour-SEED-INDEX) nor a file",
                 BUILTIN.join(", ")
             );
         }

@@ -113,6 +113,13 @@ pub fn tour(seed: u64, index: usize, seconds: f64) -> Script {
     }
 }
 
+/// The tour a name `tour-SEED-INDEX` (as [`tour`] names them) stands
+/// for, 10 s long: the tours can be replayed by name.
+pub fn by_name(name: &str) -> Option<Script> {
+    let (seed, index) = name.strip_prefix("tour-")?.split_once('-')?;
+    Some(tour(seed.parse().ok()?, index.parse().ok()?, 10.0))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -122,6 +129,17 @@ mod tests {
         assert_eq!(tour(1, 0, 10.0), tour(1, 0, 10.0));
         assert_ne!(tour(1, 0, 10.0), tour(1, 1, 10.0));
         assert_ne!(tour(1, 0, 10.0), tour(2, 0, 10.0));
+    }
+
+    #[test]
+    fn tours_replay_by_name() {
+        let t = tour(12, 3, 10.0);
+        assert_eq!(t.name, "tour-12-3");
+        assert_eq!(by_name(&t.name), Some(t.clone()));
+        assert_eq!(Script::load("tour-12-3").ok(), Some(t));
+        for bad in ["tour-12", "tour--3", "tour-a-3", "tour-1-2-3", "walk"] {
+            assert_eq!(by_name(bad), None, "{bad}");
+        }
     }
 
     #[test]
