@@ -18,6 +18,7 @@ pub mod npz;
 pub mod ops;
 pub mod pfnn_dir;
 pub mod plan;
+pub mod progress;
 pub mod quantise;
 pub mod rig;
 pub mod sizes;

@@ -2,12 +2,11 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use exporter::progress::spinner;
 use phasegate::blob::WeightFormat;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Duration;
 
 use exporter::export::ExportReport;
 use exporter::net::{GatingMode, Net};
@@ -194,38 +193,11 @@ enum Command {
     },
 }
 
-/// A progress display on stderr, hidden when stdout is not a terminal.
-fn spinner(msg: &str) -> ProgressBar {
-    let target = if std::io::stdout().is_terminal() {
-        ProgressDrawTarget::stderr()
-    } else {
-        ProgressDrawTarget::hidden()
-    };
-    let pb = ProgressBar::with_draw_target(None, target);
-    pb.set_style(
-        ProgressStyle::with_template("{spinner} {msg} [{elapsed}]")
-            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
-    );
-    pb.set_message(msg.to_string());
-    pb.enable_steady_tick(Duration::from_millis(120));
-    pb
-}
-
 fn load_pfnn_dir(
     dir: &Path,
     mode: GatingMode,
 ) -> Result<(Net, Option<exporter::control_points::Residual>)> {
-    let target = if std::io::stdout().is_terminal() {
-        ProgressDrawTarget::stderr()
-    } else {
-        ProgressDrawTarget::hidden()
-    };
-    let bar = ProgressBar::with_draw_target(Some(0), target);
-    bar.set_style(
-        ProgressStyle::with_template("reading {msg} {bar:30} {pos}/{len} files [{elapsed}]")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    bar.set_message(dir.display().to_string());
+    let bar = exporter::progress::bar(0, &format!("reading {}", dir.display()), "files");
     let tables = exporter::pfnn_dir::load_pfnn_dir_auto(
         dir,
         Some(&mut |done, total| {

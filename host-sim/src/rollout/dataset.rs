@@ -145,6 +145,11 @@ impl RolloutDataset {
 /// script, recording every network input and phase.
 pub fn collect(net: &Net, scripts: &[Script], frames: usize) -> Result<RolloutDataset> {
     let mut d = RolloutDataset::default();
+    let bar = exporter::progress::bar(
+        scripts.len() as u64,
+        "recording the float controller",
+        "scripts",
+    );
     for (si, script) in scripts.iter().enumerate() {
         let mut ctl = reference_f64(net)?;
         for f in 0..frames {
@@ -165,7 +170,9 @@ pub fn collect(net: &Net, scripts: &[Script], frames: usize) -> Result<RolloutDa
             d.script.push(si);
             d.frame.push(f);
         }
+        bar.inc(1);
     }
+    bar.finish_and_clear();
     Ok(d)
 }
 
@@ -181,6 +188,11 @@ pub fn collect_fixed(
     first_script: usize,
 ) -> Result<RolloutDataset> {
     let mut d = RolloutDataset::default();
+    let bar = exporter::progress::bar(
+        scripts.len() as u64,
+        "recording the fixed-point controller",
+        "scripts",
+    );
     for (si, script) in scripts.iter().enumerate() {
         let mut ctl = crate::controller::FixedController::new(blob, "fixed")?;
         for f in 0..frames {
@@ -193,7 +205,9 @@ pub fn collect_fixed(
             d.script.push(first_script + si);
             d.frame.push(f);
         }
+        bar.inc(1);
     }
+    bar.finish_and_clear();
     Ok(d)
 }
 

@@ -70,8 +70,11 @@ pub fn export_blobs(net: &Net, int8: &Int8Knobs) -> Result<Blobs> {
         weights,
         ..Default::default()
     };
+    let pb = exporter::progress::spinner("exporting the int16 blob");
+    let int16 = export(net, None, &opts(WeightFormat::I16))?.0;
+    pb.finish_and_clear();
     Ok(Blobs {
-        int16: export(net, None, &opts(WeightFormat::I16))?.0,
+        int16,
         int8: int8.export(net, None, opts(WeightFormat::I8))?.0,
     })
 }
@@ -144,6 +147,7 @@ pub fn measure(
             variants,
         })
     };
+    let bar = exporter::progress::bar(loaded.len() as u64, "rollouts", "scripts");
     // Two workers (the CI machine has two cores); results in script order.
     let mut results: Vec<Option<Result<ScriptResult>>> = (0..loaded.len()).map(|_| None).collect();
     std::thread::scope(|s| {
@@ -154,14 +158,16 @@ pub fn measure(
         for chunk in chunks {
             let mine = &loaded[start..start + chunk.len()];
             start += chunk.len();
-            let one = &one;
+            let (one, bar) = (&one, &bar);
             s.spawn(move || {
                 for (slot, script) in chunk.iter_mut().zip(mine) {
                     *slot = Some(one(script));
+                    bar.inc(1);
                 }
             });
         }
     });
+    bar.finish_and_clear();
     let scripts = results
         .into_iter()
         .map(|r| r.unwrap_or_else(|| Err(anyhow::anyhow!("worker did not finish"))))
