@@ -267,20 +267,32 @@ fn row(d: &OmgDir, run: &str, blob_bytes: usize, held: &HeldOut, ys: &[Vec<Vec<f
     }
 }
 
-/// Grounded rollouts of every held-out clip, one step by `step`.
+/// Grounded rollouts of every clip of `held` by `net` (`what` names it on
+/// the progress bar).
 fn rollouts(
     d: &OmgDir,
     held: &HeldOut,
     net: &mut impl phasegate_controller::Network<f64>,
+    what: &str,
 ) -> Result<Vec<Vec<Vec<f64>>>> {
     let t = d.omg.config.slice("target");
-    held.clips
+    let bar = exporter::progress::bar(
+        held.clips.len() as u64,
+        &format!("rolling out {what}"),
+        "clips",
+    );
+    let out = held
+        .clips
         .iter()
         .map(|clip| {
             let targets: Vec<&[f64]> = clip.iter().map(|f| &f[t.clone()]).collect();
-            rollout(&d.omg, &clip[0], &targets, Mode::Grounded, net)
+            let y = rollout(&d.omg, &clip[0], &targets, Mode::Grounded, net);
+            bar.inc(1);
+            y
         })
-        .collect()
+        .collect();
+    bar.finish_and_clear();
+    out
 }
 
 /// The float model's grounded rollouts of the first `n` training clips of
@@ -310,7 +322,7 @@ pub fn train_rollouts(d: &OmgDir, data: &Path, rig: &str, n: usize) -> Result<Re
         clips: (0..n).map(|c| clip_rows(&values, c, t, w, width)).collect(),
         reps: vec![0; n],
     };
-    let inputs: Vec<Vec<f64>> = rollouts(d, &train, &mut FloatOmg(&d.omg))?
+    let inputs: Vec<Vec<f64>> = rollouts(d, &train, &mut FloatOmg(&d.omg), "f64 (calibration)")?
         .concat()
         .iter()
         .map(|row| row.iter().map(|v| f64::from(*v as f32)).collect())
@@ -340,12 +352,14 @@ pub fn measure(dir: &Path, data: &Path, opts: &QuantOptions, int8: &Int8Knobs) -
     let d = load_dir(dir)?;
     let rig = rig_of(dir)?;
     let held = HeldOut::read(data, &rig, d.omg.config.model_width)?;
-    let float = rollouts(&d, &held, &mut FloatOmg(&d.omg))?;
+    let float = rollouts(&d, &held, &mut FloatOmg(&d.omg), "f64")?;
     let mut rows = vec![
         row(&d, "data", 0, &held, &held.clips),
         row(&d, "f64", 0, &held, &float),
     ];
+    let pb = exporter::progress::spinner("exporting the int16 blob");
     let int16 = crate::omg::export(&d, WeightFormat::I16, opts)?;
+    pb.finish_and_clear();
     let int8_opts = QuantOptions {
         weights: WeightFormat::I8,
         ..opts.clone()
@@ -358,7 +372,7 @@ pub fn measure(dir: &Path, data: &Path, opts: &QuantOptions, int8: &Int8Knobs) -
     let flat = |v: &[Vec<Vec<f64>>]| v.concat();
     for (name, blob) in [("int16", &int16), ("int8", &int8)] {
         let mut fx = FixedOmg::new(blob)?;
-        let ys = rollouts(&d, &held, &mut fx)?;
+        let ys = rollouts(&d, &held, &mut fx, name)?;
         let mut r = row(&d, name, blob.len(), &held, &ys);
         r.vs_f64 = Some(diff(&d.omg, &flat(&ys), &flat(&float)));
         rows.push(r);
