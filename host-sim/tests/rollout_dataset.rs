@@ -127,21 +127,24 @@ fn blob_rows_are_the_fixed_point_controllers_own_inputs() {
     let b = tmp.path().join("calm.blob");
     std::fs::write(&b, &blob).unwrap();
     let out = tmp.path().join("d.npz");
-    let o = host_sim(&[
-        "rollout-dataset",
-        "--pfnn",
-        m.to_str().unwrap(),
-        "--scripts",
-        "idle",
-        "--tours",
-        "1",
-        "--frames",
-        "50",
-        "--blob",
-        b.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-    ]);
+    let run = |blob: &Path| {
+        host_sim(&[
+            "rollout-dataset",
+            "--pfnn",
+            m.to_str().unwrap(),
+            "--scripts",
+            "idle",
+            "--tours",
+            "1",
+            "--frames",
+            "50",
+            "--blob",
+            blob.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+    };
+    let o = run(&b);
     assert!(o.status.success(), "{}", stderr(&o));
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("200 rows (4 scripts x 50 frames)"), "{text}");
@@ -194,17 +197,7 @@ fn blob_rows_are_the_fixed_point_controllers_own_inputs() {
     let bad = tmp.path().join("bad.blob");
     std::fs::write(&bad, b"not a blob").unwrap();
     std::fs::remove_file(&out).unwrap();
-    let o = host_sim(&[
-        "rollout-dataset",
-        "--pfnn",
-        m.to_str().unwrap(),
-        "--frames",
-        "5",
-        "--blob",
-        bad.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-    ]);
+    let o = run(&bad);
     let err = stderr(&o);
     assert!(!o.status.success());
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");

@@ -28,7 +28,7 @@ use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
 
 use super::{load_reference, Script};
-use crate::controller::{reference_f64, Controller};
+use crate::controller::{reference_f64, Controller, FixedController};
 
 /// The scripts `--scripts` defaults to.
 pub const DEFAULT_SCRIPTS: &str = "walk,circle-left,zigzag,jog-stop-jog,crouch-walk";
@@ -144,36 +144,14 @@ impl RolloutDataset {
 /// Runs the f64 float controller over `net` for `frames` frames of each
 /// script, recording every network input and phase.
 pub fn collect(net: &Net, scripts: &[Script], frames: usize) -> Result<RolloutDataset> {
-    let mut d = RolloutDataset::default();
-    let bar = exporter::progress::bar(
-        scripts.len() as u64,
-        "recording the float controller",
-        "scripts",
-    );
-    for (si, script) in scripts.iter().enumerate() {
-        let mut ctl = reference_f64(net)?;
-        for f in 0..frames {
-            let pose = ctl
-                .step(&script.command(f))
-                .with_context(|| format!("script {}: frame {f}", script.name))?;
-            let x = ctl.state().last_input();
-            if let Some(i) = x.iter().position(|&v| !(v as f32).is_finite()) {
-                bail!(
-                    "script {}: frame {f}: network input {i} is {} (beyond float32): \
-                     the float controller diverged",
-                    script.name,
-                    x[i]
-                );
-            }
-            d.inputs.push(x.to_vec());
-            d.phases.push(pose.phase * TAU);
-            d.script.push(si);
-            d.frame.push(f);
-        }
-        bar.inc(1);
-    }
-    bar.finish_and_clear();
-    Ok(d)
+    record(
+        scripts,
+        frames,
+        0,
+        "the float controller",
+        || reference_f64(net),
+        |c| c.state().last_input().to_vec(),
+    )
 }
 
 /// Runs the fixed-point controller of `blob` (the device's loop, on the
@@ -187,20 +165,49 @@ pub fn collect_fixed(
     frames: usize,
     first_script: usize,
 ) -> Result<RolloutDataset> {
+    record(
+        scripts,
+        frames,
+        first_script,
+        "the fixed-point controller",
+        || FixedController::new(blob, "fixed"),
+        |c| c.inner().state().last_input().map(f64::from).to_vec(),
+    )
+}
+
+/// Runs a fresh controller from `start` over each script (`what` names it
+/// on the progress bar and in errors), recording the network input that
+/// `input` reads after every step, and the phase.
+fn record<C: Controller>(
+    scripts: &[Script],
+    frames: usize,
+    first_script: usize,
+    what: &str,
+    start: impl Fn() -> Result<C>,
+    input: impl Fn(&C) -> Vec<f64>,
+) -> Result<RolloutDataset> {
     let mut d = RolloutDataset::default();
     let bar = exporter::progress::bar(
         scripts.len() as u64,
-        "recording the fixed-point controller",
+        &format!("recording {what}"),
         "scripts",
     );
     for (si, script) in scripts.iter().enumerate() {
-        let mut ctl = crate::controller::FixedController::new(blob, "fixed")?;
+        let mut ctl = start()?;
         for f in 0..frames {
             let pose = ctl
                 .step(&script.command(f))
-                .with_context(|| format!("script {} (blob): frame {f}", script.name))?;
-            let x = ctl.inner().state().last_input();
-            d.inputs.push(x.iter().map(|&v| f64::from(v)).collect());
+                .with_context(|| format!("script {}: frame {f}", script.name))?;
+            let x = input(&ctl);
+            if let Some(i) = x.iter().position(|&v| !(v as f32).is_finite()) {
+                bail!(
+                    "script {}: frame {f}: network input {i} is {} (beyond float32): \
+                     {what} diverged",
+                    script.name,
+                    x[i]
+                );
+            }
+            d.inputs.push(x);
             d.phases.push(pose.phase * TAU);
             d.script.push(first_script + si);
             d.frame.push(f);
