@@ -114,10 +114,13 @@ pub fn tour(seed: u64, index: usize, seconds: f64) -> Script {
 }
 
 /// The tour a name `tour-SEED-INDEX` (as [`tour`] names them) stands
-/// for, 10 s long: the tours can be replayed by name.
+/// for, so that recorded tours can be replayed by name. It is drawn an
+/// hour long: a tour's commands do not depend on its length, only how
+/// many there are, so every frame of a recording of any length up to an
+/// hour gets the same command.
 pub fn by_name(name: &str) -> Option<Script> {
     let (seed, index) = name.strip_prefix("tour-")?.split_once('-')?;
-    Some(tour(seed.parse().ok()?, index.parse().ok()?, 10.0))
+    Some(tour(seed.parse().ok()?, index.parse().ok()?, 3600.0))
 }
 
 #[cfg(test)]
@@ -133,10 +136,18 @@ mod tests {
 
     #[test]
     fn tours_replay_by_name() {
-        let t = tour(12, 3, 10.0);
-        assert_eq!(t.name, "tour-12-3");
-        assert_eq!(by_name(&t.name), Some(t.clone()));
-        assert_eq!(Script::load("tour-12-3").ok(), Some(t));
+        let (short, long) = (tour(12, 3, 10.0), tour(12, 3, 40.0));
+        assert_eq!(short.name, "tour-12-3");
+        let replay = by_name(&short.name).unwrap();
+        assert_eq!(Script::load("tour-12-3").ok().as_ref(), Some(&replay));
+        // A longer tour starts as the shorter one does.
+        assert_eq!(long.commands[..short.commands.len()], short.commands[..]);
+        // The replay gives a recording of either length its commands.
+        for (t, frames) in [(&short, 600), (&long, 2400)] {
+            for f in 0..frames {
+                assert_eq!(replay.command(f), t.command(f), "frame {f} of {frames}");
+            }
+        }
         for bad in ["tour-12", "tour--3", "tour-a-3", "tour-1-2-3", "walk"] {
             assert_eq!(by_name(bad), None, "{bad}");
         }
