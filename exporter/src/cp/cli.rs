@@ -259,6 +259,7 @@ pub fn cp(args: &CpArgs) -> Result<()> {
     let data = DistillData::load(&args.distill_data, &args.eval_data, dense.input_dim())?;
     let mut net = dense.clone();
     let mut decomposed = Vec::new();
+    let bar = crate::progress::bar(chosen.len() as u64, "CP decomposition (ALS)", "layers");
     for &l in &chosen {
         let layer = dense.layers[l]
             .as_dense()
@@ -284,7 +285,9 @@ pub fn cp(args: &CpArgs) -> Result<()> {
             dense_bytes,
         });
         net.layers[l] = op;
+        bar.inc(1);
     }
+    bar.finish_and_clear();
     let s = normal_inputs(
         &dense.xmean.to_vec(),
         &dense.xstd.to_vec(),
@@ -322,6 +325,7 @@ pub fn cp(args: &CpArgs) -> Result<()> {
                 &ys,
             ));
         }
+        let pb = crate::progress::spinner(&format!("distilling, {} steps", args.distill));
         let (tuned, rep) = distill(
             &dense,
             &net,
@@ -334,6 +338,7 @@ pub fn cp(args: &CpArgs) -> Result<()> {
                 ..DistillOptions::default()
             },
         );
+        pb.finish_and_clear();
         net = tuned;
         distill_report = Some(rep);
     }
@@ -348,7 +353,9 @@ pub fn cp(args: &CpArgs) -> Result<()> {
         .map_err(anyhow::Error::msg)?,
         ..QuantOptions::default()
     };
+    let pb = crate::progress::spinner("quantising");
     let (blob, blob_report) = export(&net, None, &opts)?;
+    pb.finish_and_clear();
     let y_fixed = run_blob(&blob, &s.inputs, &s.phases)?;
     let mut rollout_sets = Vec::new();
     for (((name, e), yd), b) in sets.iter().zip(&sets_dense).zip(sets_before) {
