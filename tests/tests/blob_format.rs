@@ -324,27 +324,18 @@ fn postcard_encodings_match_the_document() {
         },
     };
     assert_eq!(enc(&cp), [0x01, 0x03, 0x00, 0x04, 0x04, 0x08, 0x0c, 0x18]);
-    let rbf = LayerOp::Rbf {
-        scales: Section {
-            offset: 16,
-            len: 128,
-        },
-        align: Section {
-            offset: 144,
-            len: 32,
-        },
+    // RBF and DEC share their sections' layout; only the index differs.
+    let scales = Section {
+        offset: 16,
+        len: 128,
     };
+    let align = Section {
+        offset: 144,
+        len: 32,
+    };
+    let rbf = LayerOp::Rbf { scales, align };
     assert_eq!(enc(&rbf), [0x03, 0x10, 0x80, 0x01, 0x90, 0x01, 0x20]);
-    let dec = LayerOp::Dec {
-        scales: Section {
-            offset: 16,
-            len: 128,
-        },
-        align: Section {
-            offset: 144,
-            len: 32,
-        },
-    };
+    let dec = LayerOp::Dec { scales, align };
     assert_eq!(enc(&dec), [0x04, 0x10, 0x80, 0x01, 0x90, 0x01, 0x20]);
     // u8 is one raw byte, not a varint (200 would be c8 01 as a varint).
     let style = ModelKind::Style {
