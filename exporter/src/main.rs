@@ -2,7 +2,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
-use exporter::progress::spinner;
+use exporter::progress::{during, spinner};
 use phasegate::blob::WeightFormat;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -206,13 +206,11 @@ fn load_pfnn_dir(
         }),
     )?;
     bar.finish_and_clear();
-    let pb = spinner(match mode {
+    let msg = match mode {
         GatingMode::Cubic => "recovering control points",
         _ => "selecting tables",
-    });
-    let out = Net::from_pfnn_tables(&tables, mode);
-    pb.finish_and_clear();
-    Ok(out)
+    };
+    Ok(during(msg, || Net::from_pfnn_tables(&tables, mode)))
 }
 
 /// Quantises and writes `net`, read from `source` (named in errors about
@@ -264,14 +262,12 @@ fn export(
     };
     let (blob, report) = match q.int16_budget {
         None => {
-            let pb = spinner(&match opts.compensation_samples {
+            let msg = match opts.compensation_samples {
                 0 => "calibrating and quantising".to_string(),
                 n => format!("calibrating and quantising, error-aware rounding on {n} samples"),
-            });
-            let r = exporter::export::export(net, residual, &opts)
-                .with_context(|| source.display().to_string())?;
-            pb.finish_and_clear();
-            r
+            };
+            during(&msg, || exporter::export::export(net, residual, &opts))
+                .with_context(|| source.display().to_string())?
         }
         Some(_) if weights == WeightFormat::I16 => {
             bail!("--int16-budget spends bytes on an int8 blob; this one is int16 already")

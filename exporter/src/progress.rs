@@ -27,6 +27,15 @@ pub fn spinner(msg: &str) -> ProgressBar {
     pb
 }
 
+/// Runs `work` under a [`spinner`] showing `msg`, cleared when it ends
+/// (whatever it returns).
+pub fn during<T>(msg: &str, work: impl FnOnce() -> T) -> T {
+    let pb = spinner(msg);
+    let out = work();
+    pb.finish_and_clear();
+    out
+}
+
 /// A bar of `len` `unit` (for instance "scripts"), with `msg` before it.
 pub fn bar(len: u64, msg: &str, unit: &str) -> ProgressBar {
     let pb = ProgressBar::with_draw_target(Some(len), target());
@@ -53,5 +62,6 @@ mod tests {
             assert!(b.is_hidden());
             assert!(spinner("exporting").is_hidden());
         }
+        assert_eq!(during("adding", || 2 + 2), 4);
     }
 }

@@ -79,9 +79,9 @@ pub fn measure(
         weights: WeightFormat::I8,
         ..QuantOptions::default()
     };
-    let pb = exporter::progress::spinner("exporting the int16 blob");
-    let (blob16, int16_report) = export(&cubic, residual, &opts16)?;
-    pb.finish_and_clear();
+    let (blob16, int16_report) = exporter::progress::during("exporting the int16 blob", || {
+        export(&cubic, residual, &opts16)
+    })?;
     let (blob8, int8_report) = int8.export(&cubic, residual, opts8)?;
     let mut rows = Vec::new();
     for (i, &spread) in SPREADS.iter().enumerate() {

@@ -357,9 +357,9 @@ pub fn measure(dir: &Path, data: &Path, opts: &QuantOptions, int8: &Int8Knobs) -
         row(&d, "data", 0, &held, &held.clips),
         row(&d, "f64", 0, &held, &float),
     ];
-    let pb = exporter::progress::spinner("exporting the int16 blob");
-    let int16 = crate::omg::export(&d, WeightFormat::I16, opts)?;
-    pb.finish_and_clear();
+    let int16 = exporter::progress::during("exporting the int16 blob", || {
+        crate::omg::export(&d, WeightFormat::I16, opts)
+    })?;
     let int8_opts = QuantOptions {
         weights: WeightFormat::I8,
         ..opts.clone()

@@ -112,18 +112,18 @@ impl Int8Knobs {
         recorded: Option<Recorded>,
     ) -> Result<(Vec<u8>, ExportReport)> {
         let opts = self.apply_with(net, opts, recorded)?;
-        let pb = exporter::progress::spinner(&match opts.compensation_samples {
+        let msg = match opts.compensation_samples {
             0 => "exporting the int8 blob".to_string(),
             n => format!("exporting the int8 blob (error-aware rounding, {n} samples)"),
-        });
-        let out = match self.int16_budget {
-            Some(b) => {
-                exporter::budget::export_with_int16_budget(net, residual, &opts, b, |_, _| {})?
-            }
-            None => exporter::export::export(net, residual, &opts)?,
         };
-        pb.finish_and_clear();
-        Ok(out)
+        exporter::progress::during(&msg, || {
+            Ok(match self.int16_budget {
+                Some(b) => {
+                    exporter::budget::export_with_int16_budget(net, residual, &opts, b, |_, _| {})?
+                }
+                None => exporter::export::export(net, residual, &opts)?,
+            })
+        })
     }
 
     /// `opts` with these knobs applied.

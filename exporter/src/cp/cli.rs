@@ -325,20 +325,21 @@ pub fn cp(args: &CpArgs) -> Result<()> {
                 &ys,
             ));
         }
-        let pb = crate::progress::spinner(&format!("distilling, {} steps", args.distill));
-        let (tuned, rep) = distill(
-            &dense,
-            &net,
-            &data,
-            &DistillOptions {
-                steps: args.distill,
-                samples: args.distill_samples.max(1),
-                normal_fraction: f,
-                lr: args.distill_lr,
-                ..DistillOptions::default()
-            },
-        );
-        pb.finish_and_clear();
+        let (tuned, rep) =
+            crate::progress::during(&format!("distilling, {} steps", args.distill), || {
+                distill(
+                    &dense,
+                    &net,
+                    &data,
+                    &DistillOptions {
+                        steps: args.distill,
+                        samples: args.distill_samples.max(1),
+                        normal_fraction: f,
+                        lr: args.distill_lr,
+                        ..DistillOptions::default()
+                    },
+                )
+            });
         net = tuned;
         distill_report = Some(rep);
     }
@@ -353,9 +354,7 @@ pub fn cp(args: &CpArgs) -> Result<()> {
         .map_err(anyhow::Error::msg)?,
         ..QuantOptions::default()
     };
-    let pb = crate::progress::spinner("quantising");
-    let (blob, blob_report) = export(&net, None, &opts)?;
-    pb.finish_and_clear();
+    let (blob, blob_report) = crate::progress::during("quantising", || export(&net, None, &opts))?;
     let y_fixed = run_blob(&blob, &s.inputs, &s.phases)?;
     let mut rollout_sets = Vec::new();
     for (((name, e), yd), b) in sets.iter().zip(&sets_dense).zip(sets_before) {

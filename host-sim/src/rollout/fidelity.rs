@@ -70,9 +70,10 @@ pub fn export_blobs(net: &Net, int8: &Int8Knobs) -> Result<Blobs> {
         weights,
         ..Default::default()
     };
-    let pb = exporter::progress::spinner("exporting the int16 blob");
-    let int16 = export(net, None, &opts(WeightFormat::I16))?.0;
-    pb.finish_and_clear();
+    let int16 = exporter::progress::during("exporting the int16 blob", || {
+        export(net, None, &opts(WeightFormat::I16))
+    })?
+    .0;
     Ok(Blobs {
         int16,
         int8: int8.export(net, None, opts(WeightFormat::I8))?.0,
