@@ -143,6 +143,16 @@ enum Command {
         /// The model's config.json (sizes, slices, out_slices, phase update).
         #[arg(long)]
         config: PathBuf,
+        /// Also write the model as the blob computes it: model.safetensors
+        /// with every dense weight and bias replaced by its integer scaled
+        /// back (quantisation-aware training's final model, docs/omg.md).
+        #[arg(long)]
+        snap_out: Option<PathBuf>,
+        /// Also write, as JSON, the grid the blob's weights lie on: per weight
+        /// tensor, the integer units per real unit of each input column
+        /// (`python3 -m tools.omg.train --qat-grid`).
+        #[arg(long)]
+        grid_out: Option<PathBuf>,
         #[command(flatten)]
         out: OutputArgs,
     },
@@ -213,15 +223,8 @@ fn load_pfnn_dir(
     Ok(during(msg, || Net::from_pfnn_tables(&tables, mode)))
 }
 
-/// Quantises and writes `net`, read from `source` (named in errors about
-/// the network's values).
-fn export(
-    net: &Net,
-    residual: Option<exporter::control_points::Residual>,
-    q: &OutputArgs,
-    default_headroom: f64,
-    source: &Path,
-) -> Result<()> {
+/// The quantiser's options that `q` asks for on `net`.
+fn quant_options(net: &Net, q: &OutputArgs, default_headroom: f64) -> Result<QuantOptions> {
     let weights = if q.weight_bits == 16 {
         WeightFormat::I16
     } else {
@@ -260,6 +263,64 @@ fn export(
         calibration_weight,
         ..QuantOptions::default()
     };
+    Ok(opts)
+}
+
+/// The `--snap-out` and `--grid-out` files of `exporter omg`, made before
+/// anything is written.
+fn omg_grid_files(
+    omg: &exporter::net::omg::OmgNet,
+    weights: &Path,
+    q: &OutputArgs,
+    snap_out: Option<PathBuf>,
+    grid_out: Option<PathBuf>,
+) -> Result<Vec<(PathBuf, Vec<u8>)>> {
+    if snap_out.is_none() && grid_out.is_none() {
+        return Ok(Vec::new());
+    }
+    if q.int16_budget.is_some() {
+        bail!("--snap-out and --grid-out describe one weight width; leave out --int16-budget");
+    }
+    let opts = quant_options(&omg.net, q, exporter::net::omg::HEADROOM)?;
+    let quantised = during("quantising for the grid", || {
+        exporter::quantise::quantise_net(&omg.net, &opts)
+    })
+    .with_context(|| weights.display().to_string())?;
+    let mut files = Vec::new();
+    if let Some(path) = snap_out {
+        let bytes = std::fs::read(weights).with_context(|| weights.display().to_string())?;
+        let arrays = exporter::cp::import::parse_safetensors(&bytes)
+            .with_context(|| weights.display().to_string())?;
+        let snapped = exporter::net::omg_snap::snapped(omg, &quantised, &arrays)
+            .with_context(|| weights.display().to_string())?;
+        files.push((path, exporter::net::omg_snap::to_safetensors(&snapped)?));
+    }
+    if let Some(path) = grid_out {
+        let grid = exporter::net::omg_snap::grid(omg, &quantised)?;
+        let json = serde_json::json!({
+            "format": "phasegate-omg-grid-1",
+            "weight_bits": q.weight_bits,
+            "qmax": if q.weight_bits == 16 { 32767 } else { 127 },
+            "rule": "w_ij -> round(w_ij / u_j * s_i) * u_j / s_i, s_i = qmax / max_j |w_ij / u_j| \
+                     over the row (an expert stack's experts share the row)",
+            "column_scales": grid,
+        });
+        files.push((path, serde_json::to_vec_pretty(&json)?));
+    }
+    Ok(files)
+}
+
+/// Quantises and writes `net`, read from `source` (named in errors about
+/// the network's values).
+fn export(
+    net: &Net,
+    residual: Option<exporter::control_points::Residual>,
+    q: &OutputArgs,
+    default_headroom: f64,
+    source: &Path,
+) -> Result<()> {
+    let opts = quant_options(net, q, default_headroom)?;
+    let weights = opts.weights;
     let (blob, report) = match q.int16_budget {
         None => {
             let msg = match opts.compensation_samples {
@@ -471,10 +532,17 @@ fn run(cli: Cli) -> Result<()> {
         Command::Omg {
             weights,
             config,
+            snap_out,
+            grid_out,
             out,
         } => {
             let omg = exporter::net::omg::read_omg(&weights, &config)?;
-            export(&omg.net, None, &out, exporter::net::omg::HEADROOM, &weights)
+            let grid_files = omg_grid_files(&omg, &weights, &out, snap_out, grid_out)?;
+            export(&omg.net, None, &out, exporter::net::omg::HEADROOM, &weights)?;
+            for (path, bytes) in grid_files {
+                exporter::atomic::write_atomic(&path, &bytes)?;
+            }
+            Ok(())
         }
         Command::OmgRig {
             base,

@@ -207,6 +207,14 @@ pub struct Quantised {
     pub ranges: Ranges,
     /// Input format (fraction bits of normalised inputs).
     pub input_frac: u8,
+    /// Graph nets: the net's layers as the blob computes them (dense
+    /// weights and biases scaled back from their integers, other ops as
+    /// given); empty for chains.
+    pub dequantised: Vec<crate::net::NetLayer>,
+    /// Graph nets: per node, the integer units per real unit of each input
+    /// column (its producers' row formats); empty for chains and for
+    /// softmax nodes.
+    pub in_scales: Vec<Vec<f64>>,
 }
 
 /// Why quantisation failed.
@@ -837,6 +845,8 @@ pub fn quantise_net(net: &Net, opts: &QuantOptions) -> Result<Quantised, QuantEr
         in_scales = targets;
     }
     Ok(Quantised {
+        dequantised: Vec::new(),
+        in_scales: Vec::new(),
         model: QModel {
             kind: QKind::Model(ModelKind::Pfnn),
             gating,

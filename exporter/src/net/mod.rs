@@ -19,6 +19,7 @@ pub mod gating;
 pub mod graph;
 pub mod json;
 pub mod omg;
+pub mod omg_snap;
 pub mod pfnn;
 pub mod residual;
 

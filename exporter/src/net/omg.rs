@@ -770,7 +770,7 @@ pub fn read_omg(weights: &Path, config: &Path) -> Result<OmgNet> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::net::elu;
     use rand::{Rng, SeedableRng};

@@ -156,6 +156,8 @@ pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quant
         .collect();
 
     let mut layers = Vec::new();
+    let mut dequantised = net.layers.clone();
+    let mut node_in_scales = vec![Vec::new(); g.nodes.len()];
     let mut reports = Vec::new();
     let mut nodes = Vec::new();
     for (i, n) in g.nodes.iter().enumerate() {
@@ -206,7 +208,15 @@ pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quant
                     headroom: opts.headroom,
                     in_moments: moments.get(i).and_then(Option::as_ref),
                 };
-                let (ql, rep) = l.quantise(&spec)?;
+                let (ql, rep) = match l {
+                    crate::net::NetLayer::Dense(d) => {
+                        let (ql, rep, deq) = crate::ops::dense::quantise_dequantised(d, &spec)?;
+                        dequantised[*layer] = crate::net::NetLayer::Dense(deq);
+                        (ql, rep)
+                    }
+                    _ => l.quantise(&spec)?,
+                };
+                node_in_scales[i].clone_from(&in_scales);
                 reports.push(QuantLayerReport {
                     calibrated_max: stats[i].rows.iter().copied().fold(0.0, f64::max),
                     ..rep
@@ -243,5 +253,7 @@ pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quant
         layers: reports,
         ranges: Ranges::default(),
         input_frac,
+        dequantised,
+        in_scales: node_in_scales,
     })
 }

@@ -168,9 +168,58 @@ def remove_noise(model: OMG, clean: list):
             w.copy_(c)
 
 
-def train_omg(model: OMG, fr: Frame, train_n: torch.Tensor, val_n: torch.Tensor, args, gen, log, params=None):
+def grid_round(model: OMG, grid: dict, qmax: float) -> list:
+    """Rounds, in place, every weight matrix named in ``grid`` to the grid its blob puts it
+    on, and returns the clean weights for ``restore``. ``grid`` maps a tensor name to the
+    integer units per real unit ``u_j`` of each input column (``exporter omg --grid-out``);
+    a row's scale is ``s_i = qmax / max_j |w_ij / u_j|`` (an expert stack's experts share
+    their output rows) and ``w_ij`` becomes ``round(w_ij / u_j * s_i) * u_j / s_i``, as the
+    exporter rounds to nearest. Training through it (the gradient at the rounded weights
+    updating the clean ones, a straight-through estimate) is quantisation-aware training."""
+    clean = []
+    with torch.no_grad():
+        for name, w in model.named_tensors().items():
+            if name not in grid:
+                continue
+            u = torch.as_tensor(grid[name], dtype=w.dtype)
+            if name.startswith("experts.w"):  # (k, in, out)
+                u = u[None, :, None]
+                rows = (0, 1)
+            else:  # (out, in)
+                u = u[None, :]
+                rows = (1,)
+            e = w / u
+            s = qmax / e.abs().amax(dim=rows, keepdim=True).clamp_min(torch.finfo(w.dtype).tiny)
+            clean.append((w, w.detach().clone()))
+            w.copy_(torch.round(e * s).clamp(-qmax, qmax) / s * u)
+    return clean
+
+
+def restore(clean: list):
+    """Puts back the weights ``grid_round`` took."""
+    with torch.no_grad():
+        for w, c in clean:
+            w.copy_(c)
+
+
+def train_omg(
+    model: OMG, fr: Frame, train_n: torch.Tensor, val_n: torch.Tensor, args, gen, log, params=None, perturb=None
+):
+    """The OMG stage. ``perturb()``, when given, changes the weights in place before every
+    step and returns what puts them back; the step's gradient, taken at the changed
+    weights, updates the restored ones (``--weight-noise`` and quantisation-aware
+    fine-tuning, ``tools.omg.train.qat``). A given ``perturb`` also applies to the
+    validation loss: its model is the one being trained."""
     params = list(params if params is not None else model.parameters())
     noise = getattr(args, "weight_noise", 0.0)
+    # a given perturbation is the model being trained (QAT): validate it too
+    validate_perturbed = perturb is not None
+    if perturb is None and noise > 0:
+
+        def perturb():
+            clean = int8_noise(model, noise, gen)
+            return lambda: remove_noise(model, clean)
+
     opt = torch.optim.AdamW(params, lr=args.lr)
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=args.lr_step, gamma=0.9)
     n_clips = train_n.shape[0]
@@ -187,14 +236,14 @@ def train_omg(model: OMG, fr: Frame, train_n: torch.Tensor, val_n: torch.Tensor,
             y = X[:, 1:].reshape(-1, SEQ_LEN, n)
             xc = x[:, 0]
             for i in range(1, SEQ_LEN):
-                added = int8_noise(model, noise, gen) if noise > 0 else None
+                put_back = perturb() if perturb is not None else None
                 out = model(xc)
                 loss = F.mse_loss(out, y[:, i - 1]) + model.extra_loss()
                 opt.zero_grad()
                 loss.backward()
-                if added is not None:
+                if put_back is not None:
                     # the gradient at the perturbed weights updates the clean ones
-                    remove_noise(model, added)
+                    put_back()
                 opt.step()
                 sched.step()
                 tot += loss.item()
@@ -203,7 +252,10 @@ def train_omg(model: OMG, fr: Frame, train_n: torch.Tensor, val_n: torch.Tensor,
                 fb = fr.feed_back(out, x[:, i, fr.tgt])
                 ar = torch.rand(xc.shape[0], generator=gen) < p
                 xc = torch.where(ar[:, None], fb, x[:, i])
+        put_back = perturb() if validate_perturbed else None
         vl = one_step_loss(model, val_n)
+        if put_back is not None:
+            put_back()
         history.append(dict(epoch=ep, p=p, train=tot / cnt, val_one_step=vl, s=time.time() - t0))
         log(f"  epoch {ep:3d} p {p:.1f} train {tot / cnt:.5f} val(one-step) {vl:.5f} ({time.time() - t0:.1f} s)")
     return history
