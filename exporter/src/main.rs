@@ -35,6 +35,52 @@ struct QuantArgs {
     out: OutputArgs,
 }
 
+/// `exporter omg-rig`'s arguments.
+#[derive(clap::Args)]
+struct OmgRigArgs {
+    /// The motion blob the rig is for.
+    #[arg(long)]
+    base: PathBuf,
+    /// The rig's model (model.safetensors); its cost encoder, gate and
+    /// experts must be the motion blob's source model's.
+    #[arg(long)]
+    weights: PathBuf,
+    /// The rig's config.json.
+    #[arg(long)]
+    config: PathBuf,
+    /// The rig's name, stored in the blob (default: the weights'
+    /// directory name).
+    #[arg(long)]
+    name: Option<String>,
+    /// Weight width of the rig's nodes.
+    #[arg(long, default_value_t = 8, value_parser = parse_bits)]
+    weight_bits: u8,
+    /// Where to write the rig blob.
+    #[arg(short = 'o', long = "output")]
+    output: PathBuf,
+    /// Also write a JSON report (sizes, nodes, RAM of the combination).
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// The grid of the rig's nodes is the rig blob's, of the others the
+    /// motion blob's.
+    #[command(flatten)]
+    grid: GridArgs,
+}
+
+/// The fixed-point grid of an OMG model's blob, for quantisation-aware
+/// training (`python3 -m tools.omg.train.qat`, docs/omg.md).
+#[derive(clap::Args)]
+struct GridArgs {
+    /// Also write the model as the blob computes it: model.safetensors
+    /// with every dense weight and bias replaced by its integer scaled back.
+    #[arg(long)]
+    snap_out: Option<PathBuf>,
+    /// Also write, as JSON, the grid the blob's weights lie on: per weight
+    /// tensor, the integer units per real unit of each input column.
+    #[arg(long)]
+    grid_out: Option<PathBuf>,
+}
+
 #[derive(clap::Args)]
 struct OutputArgs {
     /// Weight width.
@@ -143,16 +189,8 @@ enum Command {
         /// The model's config.json (sizes, slices, out_slices, phase update).
         #[arg(long)]
         config: PathBuf,
-        /// Also write the model as the blob computes it: model.safetensors
-        /// with every dense weight and bias replaced by its integer scaled
-        /// back (quantisation-aware training's final model, docs/omg.md).
-        #[arg(long)]
-        snap_out: Option<PathBuf>,
-        /// Also write, as JSON, the grid the blob's weights lie on: per weight
-        /// tensor, the integer units per real unit of each input column
-        /// (`python3 -m tools.omg.train --qat-grid`).
-        #[arg(long)]
-        grid_out: Option<PathBuf>,
+        #[command(flatten)]
+        grid: GridArgs,
         #[command(flatten)]
         out: OutputArgs,
     },
@@ -160,31 +198,7 @@ enum Command {
     /// autoencoder and output node, quantised against a motion blob (an
     /// `exporter omg` blob, default options) and bound to it by its payload
     /// CRC; the rest of the graph is the motion blob's.
-    OmgRig {
-        /// The motion blob the rig is for.
-        #[arg(long)]
-        base: PathBuf,
-        /// The rig's model (model.safetensors); its cost encoder, gate and
-        /// experts must be the motion blob's source model's.
-        #[arg(long)]
-        weights: PathBuf,
-        /// The rig's config.json.
-        #[arg(long)]
-        config: PathBuf,
-        /// The rig's name, stored in the blob (default: the weights'
-        /// directory name).
-        #[arg(long)]
-        name: Option<String>,
-        /// Weight width of the rig's nodes.
-        #[arg(long, default_value_t = 8, value_parser = parse_bits)]
-        weight_bits: u8,
-        /// Where to write the rig blob.
-        #[arg(short = 'o', long = "output")]
-        output: PathBuf,
-        /// Also write a JSON report (sizes, nodes, RAM of the combination).
-        #[arg(long)]
-        report: Option<PathBuf>,
-    },
+    OmgRig(OmgRigArgs),
     /// Decompose a dense model's layers by CP-ALS and write a CP blob.
     Cp(exporter::cp::cli::CpArgs),
     /// Write a blob from trained CP factors (.npz or .safetensors).
@@ -266,28 +280,30 @@ fn quant_options(net: &Net, q: &OutputArgs, default_headroom: f64) -> Result<Qua
     Ok(opts)
 }
 
-/// The `--snap-out` and `--grid-out` files of `exporter omg`, made before
-/// anything is written.
+fn write_all(files: Vec<(PathBuf, Vec<u8>)>) -> Result<()> {
+    for (path, bytes) in files {
+        exporter::atomic::write_atomic(&path, &bytes)?;
+    }
+    Ok(())
+}
+
+/// The `--snap-out` and `--grid-out` files of an OMG model quantised with
+/// `opts`, made before anything is written.
 fn omg_grid_files(
     omg: &exporter::net::omg::OmgNet,
     weights: &Path,
-    q: &OutputArgs,
-    snap_out: Option<PathBuf>,
-    grid_out: Option<PathBuf>,
+    opts: &QuantOptions,
+    grid: &GridArgs,
 ) -> Result<Vec<(PathBuf, Vec<u8>)>> {
-    if snap_out.is_none() && grid_out.is_none() {
+    if grid.snap_out.is_none() && grid.grid_out.is_none() {
         return Ok(Vec::new());
     }
-    if q.int16_budget.is_some() {
-        bail!("--snap-out and --grid-out describe one weight width; leave out --int16-budget");
-    }
-    let opts = quant_options(&omg.net, q, exporter::net::omg::HEADROOM)?;
     let quantised = during("quantising for the grid", || {
-        exporter::quantise::quantise_net(&omg.net, &opts)
+        exporter::quantise::quantise_net(&omg.net, opts)
     })
     .with_context(|| weights.display().to_string())?;
     let mut files = Vec::new();
-    if let Some(path) = snap_out {
+    if let Some(path) = grid.snap_out.clone() {
         let bytes = std::fs::read(weights).with_context(|| weights.display().to_string())?;
         let arrays = exporter::cp::import::parse_safetensors(&bytes)
             .with_context(|| weights.display().to_string())?;
@@ -295,15 +311,16 @@ fn omg_grid_files(
             .with_context(|| weights.display().to_string())?;
         files.push((path, exporter::net::omg_snap::to_safetensors(&snapped)?));
     }
-    if let Some(path) = grid_out {
-        let grid = exporter::net::omg_snap::grid(omg, &quantised)?;
+    if let Some(path) = grid.grid_out.clone() {
+        let scales = exporter::net::omg_snap::grid(omg, &quantised)?;
+        let sixteen = opts.weights == WeightFormat::I16;
         let json = serde_json::json!({
             "format": "phasegate-omg-grid-1",
-            "weight_bits": q.weight_bits,
-            "qmax": if q.weight_bits == 16 { 32767 } else { 127 },
+            "weight_bits": if sixteen { 16 } else { 8 },
+            "qmax": if sixteen { 32767 } else { 127 },
             "rule": "w_ij -> round(w_ij / u_j * s_i) * u_j / s_i, s_i = qmax / max_j |w_ij / u_j| \
                      over the row (an expert stack's experts share the row)",
-            "column_scales": grid,
+            "column_scales": scales,
         });
         files.push((path, serde_json::to_vec_pretty(&json)?));
     }
@@ -424,26 +441,34 @@ fn summary(r: &ExportReport, out: &Path) {
     );
 }
 
-fn omg_rig(
-    base: &Path,
-    weights: &Path,
-    config: &Path,
-    name: Option<String>,
-    weight_bits: u8,
-    output: &Path,
-    report: Option<&Path>,
-) -> Result<()> {
+fn omg_rig(a: &OmgRigArgs) -> Result<()> {
+    let OmgRigArgs {
+        base,
+        weights,
+        config,
+        name,
+        weight_bits,
+        output,
+        report,
+        grid,
+    } = a;
+    let (base, weights, config, report) = (
+        base.as_path(),
+        weights.as_path(),
+        config.as_path(),
+        report.as_deref(),
+    );
     let motion = exporter::atomic::read_input(base)
         .with_context(|| format!("cannot read {}", base.display()))?;
     let omg = exporter::net::omg::read_omg(weights, config)?;
-    let name = name.unwrap_or_else(|| {
+    let name = name.clone().unwrap_or_else(|| {
         weights
             .parent()
             .and_then(Path::file_name)
             .map_or_else(|| "rig".to_string(), |n| n.to_string_lossy().into_owned())
     });
     let opts = QuantOptions {
-        weights: if weight_bits == 16 {
+        weights: if *weight_bits == 16 {
             WeightFormat::I16
         } else {
             WeightFormat::I8
@@ -453,8 +478,17 @@ fn omg_rig(
     };
     let mask = exporter::rig::rig_mask(&omg.net, &exporter::rig::OMG_RIG_NODES)
         .with_context(|| config.display().to_string())?;
-    let (blob, rep) = exporter::rig::export_rig(&omg.net, &motion, mask, &name, &opts)
-        .with_context(|| format!("{} against {}", weights.display(), base.display()))?;
+    let against = || format!("{} against {}", weights.display(), base.display());
+    let grid_files = match grid.snap_out.is_some() || grid.grid_out.is_some() {
+        true => {
+            let rig_opts =
+                exporter::rig::rig_options(&motion, mask, &opts).with_context(against)?;
+            omg_grid_files(&omg, weights, &rig_opts, grid)?
+        }
+        false => Vec::new(),
+    };
+    let (blob, rep) =
+        exporter::rig::export_rig(&omg.net, &motion, mask, &name, &opts).with_context(against)?;
     if let Some(path) = report {
         exporter::atomic::write_atomic(path, &serde_json::to_vec_pretty(&rep)?)?;
     }
@@ -464,6 +498,7 @@ fn omg_rig(
         }
         return Err(e);
     }
+    write_all(grid_files)?;
     println!(
         "{}: rig {:?}, {} bytes, for motion blob {} (payload CRC {:#010x}, {} bytes); \
          the pair needs {} bytes of activation RAM, {} MACs per frame",
@@ -532,35 +567,26 @@ fn run(cli: Cli) -> Result<()> {
         Command::Omg {
             weights,
             config,
-            snap_out,
-            grid_out,
+            grid,
             out,
         } => {
             let omg = exporter::net::omg::read_omg(&weights, &config)?;
-            let grid_files = omg_grid_files(&omg, &weights, &out, snap_out, grid_out)?;
+            let grid_files = if grid.snap_out.is_some() || grid.grid_out.is_some() {
+                if out.int16_budget.is_some() {
+                    bail!(
+                        "--snap-out and --grid-out describe one weight width; \
+                         leave out --int16-budget"
+                    );
+                }
+                let opts = quant_options(&omg.net, &out, exporter::net::omg::HEADROOM)?;
+                omg_grid_files(&omg, &weights, &opts, &grid)?
+            } else {
+                Vec::new()
+            };
             export(&omg.net, None, &out, exporter::net::omg::HEADROOM, &weights)?;
-            for (path, bytes) in grid_files {
-                exporter::atomic::write_atomic(&path, &bytes)?;
-            }
-            Ok(())
+            write_all(grid_files)
         }
-        Command::OmgRig {
-            base,
-            weights,
-            config,
-            name,
-            weight_bits,
-            output,
-            report,
-        } => omg_rig(
-            &base,
-            &weights,
-            &config,
-            name,
-            weight_bits,
-            &output,
-            report.as_deref(),
-        ),
+        Command::OmgRig(a) => omg_rig(&a),
         Command::Cp(a) => exporter::cp::cli::cp(&a),
         Command::CpImport(a) => exporter::cp::cli::cp_import(&a),
         Command::CpReport(a) => exporter::cp::cli::cp_report(&a),

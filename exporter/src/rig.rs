@@ -77,6 +77,26 @@ fn row_formats(model: &Model<'_>, i: usize) -> Result<Vec<u8>> {
         .ok_or_else(|| anyhow!("motion blob node {i} has a bad requantisation record"))
 }
 
+/// `opts` with the row formats the rig of the nodes in `mask` must share
+/// with `motion` (a model blob): those of every motion node, and of the
+/// rig's nodes that motion nodes read.
+pub fn rig_options(motion: &[u8], mask: u32, opts: &QuantOptions) -> Result<QuantOptions> {
+    let m = Model::from_bytes(motion).map_err(|e| anyhow!("motion blob: {e}"))?;
+    let own = |i: usize| (mask >> i) & 1 != 0;
+    let mut opts = opts.clone();
+    for i in 0..m.nodes().count() {
+        let n = m.nodes().node(i).context("motion blob node")?;
+        let read_by_motion =
+            m.nodes().each().enumerate().any(|(k, r)| {
+                !own(k) && r.inputs.iter().any(|s| s.source == Source::Node(i as u8))
+            });
+        if n.layer().is_some() && (!own(i) || read_by_motion) {
+            opts.row_formats.insert(i, row_formats(&m, i)?);
+        }
+    }
+    Ok(opts)
+}
+
 /// Quantises `net` against `motion` (a model blob) and writes the rig blob
 /// of the nodes in `mask`, named `name`; checks the pair loads.
 pub fn export_rig(
@@ -94,17 +114,7 @@ pub fn export_rig(
     let m = Model::from_bytes(motion).map_err(|e| anyhow!("motion blob: {e}"))?;
     let own = |i: usize| (mask >> i) & 1 != 0;
     let count = m.nodes().count();
-    let mut opts = opts.clone();
-    for i in 0..count {
-        let n = m.nodes().node(i).context("motion blob node")?;
-        let read_by_motion =
-            m.nodes().each().enumerate().any(|(k, r)| {
-                !own(k) && r.inputs.iter().any(|s| s.source == Source::Node(i as u8))
-            });
-        if n.layer().is_some() && (!own(i) || read_by_motion) {
-            opts.row_formats.insert(i, row_formats(&m, i)?);
-        }
-    }
+    let opts = rig_options(motion, mask, opts)?;
     let q = quantise_net(net, &opts)?;
     let full = encode(&q.model)?;
     let fm = Model::from_bytes(&full).map_err(|e| anyhow!("the rig's whole graph: {e}"))?;

@@ -890,3 +890,152 @@ fn budget_instructions_warns_without_failing() {
     assert_eq!(json["frame_budget"]["exceeds"], false);
     assert!(json["frame_budget"].get("warning").is_none());
 }
+
+/// `exporter omg --snap-out` on the committed tiny_fe_r1, a model
+/// fine-tuned for its int8 blob (`tools.omg.train.qat`), writes back the
+/// committed weights: they are the blob's own, to float32 storage.
+/// `--grid-out` names every weight tensor with one power of two per input
+/// column; with `--int16-budget` both are refused and nothing is written.
+#[test]
+fn omg_snap_of_the_committed_model_is_the_committed_model() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg/tiny_fe_r1");
+    let dir = tempfile::tempdir().unwrap();
+    let (snap, grid, blob) = (
+        dir.path().join("snap.safetensors"),
+        dir.path().join("grid.json"),
+        dir.path().join("m.blob"),
+    );
+    let (w, c) = (root.join("model.safetensors"), root.join("config.json"));
+    let (w, c) = (w.to_str().unwrap(), c.to_str().unwrap());
+    let args = |extra: &[&str]| {
+        let mut a = vec![
+            "omg",
+            "--weights",
+            w,
+            "--config",
+            c,
+            "-o",
+            blob.to_str().unwrap(),
+        ];
+        a.extend_from_slice(extra);
+        a.iter().map(|s| s.to_string()).collect::<Vec<_>>()
+    };
+    let run = |a: Vec<String>| exporter(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    let o = run(args(&[
+        "--snap-out",
+        snap.to_str().unwrap(),
+        "--grid-out",
+        grid.to_str().unwrap(),
+    ]));
+    assert!(o.status.success(), "{}", stderr(&o));
+    let read =
+        |p: &Path| exporter::cp::import::parse_safetensors(&std::fs::read(p).unwrap()).unwrap();
+    let (committed, snapped) = (read(Path::new(w)), read(&snap));
+    assert_eq!(
+        committed.keys().collect::<Vec<_>>(),
+        snapped.keys().collect::<Vec<_>>()
+    );
+    for (name, a) in &committed {
+        let b = &snapped[name];
+        assert_eq!(a.shape, b.shape, "{name}");
+        let most = a
+            .data
+            .iter()
+            .zip(&b.data)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
+        assert!(most <= 1e-6, "{name}: the blob moves a weight by {most}");
+    }
+    let g = json(&grid);
+    assert_eq!(g["weight_bits"], 8);
+    let scales = g["column_scales"].as_object().unwrap();
+    assert_eq!(scales.len(), 15, "four MLPs and three expert stacks");
+    for (name, u) in scales {
+        let cols = committed[name].shape[1] as usize;
+        let u = u.as_array().unwrap();
+        assert_eq!(u.len(), cols, "{name}");
+        assert!(
+            u.iter().all(|v| v.as_f64().unwrap().log2().fract() == 0.0),
+            "{name}"
+        );
+    }
+    let (snap2, blob2) = (dir.path().join("s2"), dir.path().join("b2.blob"));
+    let o = exporter(&[
+        "omg",
+        "--weights",
+        w,
+        "--config",
+        c,
+        "-o",
+        blob2.to_str().unwrap(),
+        "--int16-budget",
+        "1000",
+        "--snap-out",
+        snap2.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("leave out --int16-budget"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(stderr(&o).lines().count(), 1);
+    assert!(!snap2.exists() && !blob2.exists());
+}
+
+/// The same for the committed Frozen R4 model, whose deployment is a rig
+/// blob against tiny_fe_r1's motion blob: `exporter omg-rig --snap-out`
+/// gives back its weights, the shared nodes on the motion blob's grid and
+/// the autoencoder on the rig blob's.
+#[test]
+fn omg_rig_snap_of_the_committed_r4_model_is_the_committed_model() {
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg");
+    let dir = tempfile::tempdir().unwrap();
+    let (motion, rig, snap) = (
+        dir.path().join("motion.blob"),
+        dir.path().join("r4.rig"),
+        dir.path().join("snap.safetensors"),
+    );
+    let path = |m: &str, f: &str| models.join(m).join(f).to_str().unwrap().to_string();
+    let o = exporter(&[
+        "omg",
+        "--weights",
+        &path("tiny_fe_r1", "model.safetensors"),
+        "--config",
+        &path("tiny_fe_r1", "config.json"),
+        "-o",
+        motion.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let w4 = path("tiny_fe_r4_frozen", "model.safetensors");
+    let o = exporter(&[
+        "omg-rig",
+        "--base",
+        motion.to_str().unwrap(),
+        "--weights",
+        &w4,
+        "--config",
+        &path("tiny_fe_r4_frozen", "config.json"),
+        "-o",
+        rig.to_str().unwrap(),
+        "--snap-out",
+        snap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let read =
+        |p: &Path| exporter::cp::import::parse_safetensors(&std::fs::read(p).unwrap()).unwrap();
+    let (committed, snapped) = (read(Path::new(&w4)), read(&snap));
+    for (name, a) in &committed {
+        let most = a
+            .data
+            .iter()
+            .zip(&snapped[name].data)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
+        assert!(
+            most <= 1e-6,
+            "{name}: the rig blob moves a weight by {most}"
+        );
+    }
+    assert!(rig.exists());
+}

@@ -117,6 +117,16 @@ enum Command {
         /// The int8 blob's quantiser knobs, as `exporter omg` takes them.
         #[command(flatten)]
         int8: host_sim::quant_knobs::Int8Knobs,
+        /// Deploy the models as rig blobs against this model's motion blobs
+        /// (Frozen rig transfer: `tiny_fe_r4_frozen` against `tiny_fe_r1`,
+        /// as `exporter omg-rig` builds them) instead of whole blobs.
+        #[arg(long)]
+        motion_from: Option<PathBuf>,
+        /// Judge on the first N clips of the rig's training split instead
+        /// of the held-out ones (to choose among training runs without
+        /// looking at the clips they are reported on).
+        #[arg(long, value_name = "N")]
+        train_clips: Option<usize>,
     },
     /// OMG models (docs/omg.md): the f64 graph forward vs the committed
     /// PyTorch references, and int16 / int8 blobs vs the f64 forward, one
@@ -380,6 +390,8 @@ fn run(cli: Cli) -> Result<()> {
             json,
             headroom,
             int8,
+            motion_from,
+            train_clips,
         } => {
             let opts = exporter::quantise::QuantOptions {
                 headroom,
@@ -387,7 +399,14 @@ fn run(cli: Cli) -> Result<()> {
             };
             let mut all = Vec::new();
             for d in &dirs {
-                let r = host_sim::omg_reach::measure(d, &data, &opts, &int8)?;
+                let r = host_sim::omg_reach::measure(
+                    d,
+                    &data,
+                    &opts,
+                    &int8,
+                    motion_from.as_deref(),
+                    train_clips,
+                )?;
                 print!("{}", r.table());
                 all.push(r);
             }

@@ -45,6 +45,18 @@ impl HeldOut {
     /// Reads `data/<rig>/{test,val}.npy` (their first `width` columns) and
     /// `clips.json`, as `tools/omg/generate` writes them.
     pub fn read(data: &Path, rig: &str, width: usize) -> Result<HeldOut> {
+        Self::read_splits(data, rig, width, &["test", "val"], usize::MAX)
+    }
+
+    /// The first `limit` clips of each of `splits` (`"train"`, `"test"`,
+    /// `"val"`), as [`HeldOut::read`] reads the held-out ones.
+    pub fn read_splits(
+        data: &Path,
+        rig: &str,
+        width: usize,
+        splits: &[&str],
+        limit: usize,
+    ) -> Result<HeldOut> {
         let dir = data.join(rig);
         let meta_path = dir.join("clips.json");
         let meta: Vec<ClipMeta> = serde_json::from_slice(
@@ -55,7 +67,7 @@ impl HeldOut {
             clips: Vec::new(),
             reps: Vec::new(),
         };
-        for split in ["test", "val"] {
+        for &split in splits {
             let path = dir.join(format!("{split}.npy"));
             let (shape, data) = crate::npy::read_array_f32(&path)?;
             let [n, t, w] = shape[..] else {
@@ -67,7 +79,7 @@ impl HeldOut {
             if w < width {
                 bail!("{}: width {w}, the model needs {width}", path.display());
             }
-            for c in 0..n {
+            for c in 0..n.min(limit) {
                 let reps = meta
                     .iter()
                     .find(|m| m.split == split && m.row == c)
@@ -212,9 +224,11 @@ pub struct OmgReach {
     pub dir: String,
     /// Its rig.
     pub rig: String,
-    /// Held-out clips.
+    /// Clips judged.
     pub clips: usize,
-    /// Data, f64, int16, int8.
+    /// Which: `"held-out"` (test and validation) or `"training"`.
+    pub split: String,
+    /// Data, f64, int16, int8 (or the rig blobs).
     pub rows: Vec<ReachRow>,
 }
 
@@ -347,40 +361,93 @@ pub(crate) fn rig_of(dir: &Path) -> Result<String> {
         .with_context(|| format!("{}: no \"rig\"", path.display()))
 }
 
-/// Measures `dir`'s model on its rig's held-out clips under `data`.
-pub fn measure(dir: &Path, data: &Path, opts: &QuantOptions, int8: &Int8Knobs) -> Result<OmgReach> {
+/// Measures `dir`'s model on its rig's held-out clips under `data` (or on
+/// its first `train_clips` training clips, to choose among training runs
+/// without looking at the held-out ones): its own
+/// int16 and int8 blobs, or with `motion_from` (a Frozen rig model's
+/// source) rig blobs of its autoencoder against that model's blobs of the
+/// same width, as `exporter omg-rig` builds them (the int8 knobs do not
+/// apply there).
+pub fn measure(
+    dir: &Path,
+    data: &Path,
+    opts: &QuantOptions,
+    int8: &Int8Knobs,
+    motion_from: Option<&Path>,
+    train_clips: Option<usize>,
+) -> Result<OmgReach> {
     let d = load_dir(dir)?;
     let rig = rig_of(dir)?;
-    let held = HeldOut::read(data, &rig, d.omg.config.model_width)?;
+    let width = d.omg.config.model_width;
+    let held = match train_clips {
+        None => HeldOut::read(data, &rig, width)?,
+        Some(n) => HeldOut::read_splits(data, &rig, width, &["train"], n)?,
+    };
     let float = rollouts(&d, &held, &mut FloatOmg(&d.omg), "f64")?;
     let mut rows = vec![
         row(&d, "data", 0, &held, &held.clips),
         row(&d, "f64", 0, &held, &float),
     ];
-    let int16 = exporter::progress::during("exporting the int16 blob", || {
-        crate::omg::export(&d, WeightFormat::I16, opts)
-    })?;
-    let int8_opts = QuantOptions {
-        weights: WeightFormat::I8,
-        ..opts.clone()
-    };
-    let recorded = int8
-        .calibration_clips
-        .map(|n| train_rollouts(&d, data, &rig, n))
-        .transpose()?;
-    let (int8, _) = int8.export_with(&d.omg.net, None, int8_opts, recorded)?;
     let flat = |v: &[Vec<Vec<f64>>]| v.concat();
-    for (name, blob) in [("int16", &int16), ("int8", &int8)] {
-        let mut fx = FixedOmg::new(blob)?;
-        let ys = rollouts(&d, &held, &mut fx, name)?;
-        let mut r = row(&d, name, blob.len(), &held, &ys);
+    let mut run = |name: &str, fx: &mut FixedOmg<'_>, bytes: usize| -> Result<()> {
+        let ys = rollouts(&d, &held, fx, name)?;
+        let mut r = row(&d, name, bytes, &held, &ys);
         r.vs_f64 = Some(diff(&d.omg, &flat(&ys), &flat(&float)));
         rows.push(r);
+        Ok(())
+    };
+    match motion_from {
+        None => {
+            let int16 = exporter::progress::during("exporting the int16 blob", || {
+                crate::omg::export(&d, WeightFormat::I16, opts)
+            })?;
+            let int8_opts = QuantOptions {
+                weights: WeightFormat::I8,
+                ..opts.clone()
+            };
+            let recorded = int8
+                .calibration_clips
+                .map(|n| train_rollouts(&d, data, &rig, n))
+                .transpose()?;
+            let (int8, _) = int8.export_with(&d.omg.net, None, int8_opts, recorded)?;
+            for (name, blob) in [("int16", &int16), ("int8", &int8)] {
+                run(name, &mut FixedOmg::new(blob)?, blob.len())?;
+            }
+        }
+        Some(m) => {
+            if int8.is_set() {
+                bail!("--motion-from builds rig blobs as exporter omg-rig does; leave out the int8 knobs");
+            }
+            let source = load_dir(m)?;
+            let mask = exporter::rig::rig_mask(&d.omg.net, &exporter::rig::OMG_RIG_NODES)?;
+            for (name, w) in [
+                ("int16 rig", WeightFormat::I16),
+                ("int8 rig", WeightFormat::I8),
+            ] {
+                let rig_opts = crate::omg::exporter_options(w);
+                let motion = crate::omg::export(&source, w, &rig_opts)?;
+                let (rig_blob, _) = exporter::progress::during("exporting the rig blob", || {
+                    exporter::rig::export_rig(&d.omg.net, &motion, mask, "rig", &rig_opts)
+                })
+                .with_context(|| format!("{} against {}'s blob", dir.display(), m.display()))?;
+                run(
+                    name,
+                    &mut FixedOmg::with_rig(&motion, &rig_blob)?,
+                    rig_blob.len(),
+                )?;
+            }
+        }
     }
     Ok(OmgReach {
         dir: dir.display().to_string(),
         rig,
         clips: held.clips.len(),
+        split: if train_clips.is_some() {
+            "training"
+        } else {
+            "held-out"
+        }
+        .into(),
         rows,
     })
 }
@@ -389,9 +456,9 @@ impl OmgReach {
     /// The figures as a table, with the issue's bars for the blobs.
     pub fn table(&self) -> String {
         let mut s = format!(
-            "{} (rig {}, {} held-out clips, grounded rollouts of 300 frames)\n\
+            "{} (rig {}, {} {} clips, grounded rollouts of 300 frames)\n\
              run      bytes  reach %  targets  frames to reach (median)  final m  joint vs data cm  RMS rad/frame | vs f64: joint p99 cm  max cm\n",
-            self.dir, self.rig, self.clips
+            self.dir, self.rig, self.clips, self.split
         );
         for r in &self.rows {
             let vs = r.vs_f64.as_ref().map_or("-".to_string(), |v| {
@@ -417,7 +484,7 @@ impl OmgReach {
                 continue;
             };
             let pp = 100.0 * (r.reach - f.reach);
-            let bar_cm = if r.run == "int16" { 1.0 } else { 2.0 };
+            let bar_cm = if r.run.starts_with("int16") { 1.0 } else { 2.0 };
             let p99 = 100.0 * v.p99_joint_m;
             s += &format!(
                 "{}: reach {:+.1} pp vs f64 (bar: within 2) {}; p99 joint vs f64 {:.3} cm (bar: <= {bar_cm}) {}\n",

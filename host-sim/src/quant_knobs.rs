@@ -93,6 +93,18 @@ pub fn tour_rollouts(net: &Net, n: usize, seed: u64) -> Result<Recorded> {
 }
 
 impl Int8Knobs {
+    /// Whether any knob differs from the exporter's defaults.
+    pub fn is_set(&self) -> bool {
+        self.rounding.is_some()
+            || self.compensation_samples.is_some()
+            || self.calibration.is_some()
+            || self.calibration_tours.is_some()
+            || self.calibration_clips.is_some()
+            || self.calibration_weight.is_some()
+            || !self.int16_layers.is_empty()
+            || self.int16_budget.is_some()
+    }
+
     /// Exports the int8 blob of `net` with these knobs.
     pub fn export(
         &self,

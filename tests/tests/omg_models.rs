@@ -88,15 +88,18 @@ fn fixed_point_blobs_follow_the_f64_forward() {
         // One step, metres.
         assert!(i16.one_step.max_joint_m <= 0.001, "{name}: {i16:?}");
         assert!(i8.one_step.p99_joint_m <= 0.01, "{name}: {i8:?}");
-        // The grounded rollout: int16 p99 joint difference within 1 cm.
+        // The grounded rollout: p99 joint difference within 1 cm (int16)
+        // and 2 cm (int8).
         assert!(i16.rollout.p99_joint_m <= 0.01, "{name}: {i16:?}");
+        assert!(i8.rollout.p99_joint_m <= 0.02, "{name}: {i8:?}");
     }
-    // int8 within 2 cm p99 over the rollout holds on R4; on R1 it does not
-    // (measured 5.7 cm, docs/omg.md): the R1 rollout amplifies int8's
-    // one-step differences (p99 0.7 cm) and no single layer at int16 fixes it.
-    let d = load_dir(&model_dir("tiny_fe_r4_frozen")).unwrap();
+    // tiny_fe_r1's weights are its int8 blob's (fine-tuned and snapped,
+    // tools.omg.train.qat): what the int8 blob still differs by is the
+    // activations' fixed point, as int16's (measured one step p99 0.013 cm,
+    // against 0.70 cm for the float-trained model).
+    let d = load_dir(&model_dir("tiny_fe_r1")).unwrap();
     let i8 = fixed_agreement(&d, &export(&d, WeightFormat::I8, &opts).unwrap(), "int8").unwrap();
-    assert!(i8.rollout.p99_joint_m <= 0.02, "{i8:?}");
+    assert!(i8.one_step.max_joint_m <= 0.001, "{i8:?}");
 }
 
 #[test]
@@ -185,7 +188,8 @@ fn reach_metrics_match_the_numpy_evaluation() {
         ..QuantOptions::default()
     };
     for name in MODELS {
-        let r = host_sim::omg_reach::measure(&model_dir(name), &data, &opts, &knobs).unwrap();
+        let r = host_sim::omg_reach::measure(&model_dir(name), &data, &opts, &knobs, None, None)
+            .unwrap();
         eprint!("{}", r.table());
         let want = eval
             .as_array()
@@ -223,6 +227,69 @@ fn reach_metrics_match_the_numpy_evaluation() {
             assert!(
                 b.vs_f64.as_ref().unwrap().frames == r.clips * 300,
                 "{name} {run}"
+            );
+        }
+    }
+}
+
+/// Issue 11's bars on the held-out clips (docs/omg.md, "Reaching on the
+/// held-out clips"): every committed model's int16 and int8 deployment
+/// (whole blobs; for the Frozen R4 model, rig blobs against tiny_fe_r1's
+/// motion blobs of the same width) keeps the f64 model's reach within 2
+/// percentage points, and its p99 joint difference to the f64 rollout
+/// within 1 cm (int16) and 2 cm (int8) over 48 clips of 300 frames. The
+/// models are fine-tuned for their int8 blobs (`tools.omg.train.qat`).
+/// Needs the data set, as the test above.
+#[test]
+fn reach_bars_hold_for_every_committed_model() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let data = root.join("data/omg");
+    if !data.join("R1/clips.json").exists() || !data.join("R4/clips.json").exists() {
+        eprintln!(
+            "OMG data set absent at {}: reach bars not checked \
+             (python3 -m tools.omg.generate --out data/omg --seed 0 --rigs R1,R4)",
+            data.display()
+        );
+        return;
+    }
+    let knobs = host_sim::quant_knobs::Int8Knobs::default();
+    let opts = QuantOptions {
+        headroom: HEADROOM,
+        ..QuantOptions::default()
+    };
+    for (name, motion) in [
+        ("tiny_fe_r1", None),
+        ("tiny_fe_r4_frozen", Some(model_dir("tiny_fe_r1"))),
+        ("small_fe_r1", None),
+        ("small_rbfcat_r1", None),
+    ] {
+        let r = host_sim::omg_reach::measure(
+            &model_dir(name),
+            &data,
+            &opts,
+            &knobs,
+            motion.as_deref(),
+            None,
+        )
+        .unwrap();
+        eprint!("{}", r.table());
+        let f = r.rows.iter().find(|x| x.run == "f64").unwrap();
+        let blobs: Vec<_> = r.rows.iter().filter(|x| x.vs_f64.is_some()).collect();
+        assert_eq!(blobs.len(), 2, "{name}");
+        for b in blobs {
+            let bar_m = if b.run.starts_with("int16") {
+                0.01
+            } else {
+                0.02
+            };
+            let p99 = b.vs_f64.as_ref().unwrap().p99_joint_m;
+            assert!(p99 <= bar_m, "{name} {}: p99 {p99} m", b.run);
+            assert!(
+                (b.reach - f.reach).abs() <= 0.02 + 1e-12,
+                "{name} {}: reach {} against {}",
+                b.run,
+                b.reach,
+                f.reach
             );
         }
     }
@@ -351,7 +418,9 @@ fn reach_calibration_rollouts_come_from_the_training_clips() {
         headroom: HEADROOM,
         ..QuantOptions::default()
     };
-    let r = host_sim::omg_reach::measure(&model_dir("tiny_fe_r1"), &data, &opts, &knobs).unwrap();
+    let r =
+        host_sim::omg_reach::measure(&model_dir("tiny_fe_r1"), &data, &opts, &knobs, None, None)
+            .unwrap();
     eprint!("{}", r.table());
     let int8 = r.rows.iter().find(|x| x.run == "int8").unwrap();
     assert_eq!(int8.vs_f64.as_ref().unwrap().frames, r.clips * 300);

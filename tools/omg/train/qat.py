@@ -22,7 +22,8 @@ Steps, all in ``--out``:
    snapped model snaps to itself (the grid follows the model's calibrated ranges, so the
    first snap can move a row's format); ``--max-snaps`` bounds it.
 4. ``references.npz`` for the snapped weights (the source's clips), ``config.json`` (the
-   source's, with a ``qat`` record), ``history.json``, ``qat.log``.
+   source's, with a ``qat`` record), ``qat_history.json`` and ``qat.log`` beside the
+   source's ``history.json`` and ``train.log``.
 """
 
 from __future__ import annotations
@@ -68,6 +69,9 @@ def parse(argv=None):
     a.add_argument("--freeze-shared", action="store_true", help="train only the autoencoder")
     a.add_argument("--train-share", type=float, default=None,
                    help="share of the training clips (default: the source's, with its rows)")
+    a.add_argument("--motion-from", default=None,
+                   help="a Frozen rig model: the model directory whose int8 blob is the motion blob its "
+                   "rig blob is built against (the grid of the shared nodes is that blob's)")
     a.add_argument("--exporter", default="target/release/exporter", help="the exporter binary")
     a.add_argument("--max-snaps", type=int, default=6)
     a.add_argument("--seed", type=int, default=0)
@@ -75,19 +79,31 @@ def parse(argv=None):
     return a.parse_args(argv)
 
 
-def exporter(args, model_dir: Path, *extra: str) -> None:
-    blob = Path(tempfile.mkdtemp()) / "model.blob"
-    cmd = [
-        args.exporter, "omg",
-        "--weights", str(model_dir / "model.safetensors"),
-        "--config", str(model_dir / "config.json"),
-        "--weight-bits", str(args.weight_bits),
-        "-o", str(blob), *extra,
-    ]
+def run(cmd: list) -> None:
     r = subprocess.run(cmd, capture_output=True, text=True)
-    shutil.rmtree(blob.parent, ignore_errors=True)
     if r.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)}: {r.stderr.strip()}")
+
+
+def exporter(args, model_dir: Path, *extra: str) -> None:
+    """``exporter omg`` on ``model_dir`` with ``extra``; with ``--motion-from``, ``exporter
+    omg-rig`` against that model's blob (the grid of the motion nodes is then the motion
+    blob's, which the rig shares)."""
+    tmp = Path(tempfile.mkdtemp())
+    model = ["--weights", str(model_dir / "model.safetensors"), "--config", str(model_dir / "config.json"),
+             "--weight-bits", str(args.weight_bits)]
+    try:
+        if args.motion_from is None:
+            run([args.exporter, "omg", *model, "-o", str(tmp / "model.blob"), *extra])
+        else:
+            motion = Path(args.motion_from)
+            run([args.exporter, "omg", "--weights", str(motion / "model.safetensors"),
+                 "--config", str(motion / "config.json"), "--weight-bits", str(args.weight_bits),
+                 "-o", str(tmp / "motion.blob")])
+            run([args.exporter, "omg-rig", "--base", str(tmp / "motion.blob"), *model,
+                 "-o", str(tmp / "rig.blob"), *extra])
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def load_float32(model_dir: Path, cfg: dict) -> tuple[OMG, dict]:
@@ -141,7 +157,8 @@ def main(argv=None):
     t_start = time.time()
     cfg = json.loads((src / "config.json").read_text())
     shutil.copy(src / "config.json", out / "config.json")
-    for extra in ("rig.json",):
+    # the source's own record stays beside the fine-tuning's
+    for extra in ("rig.json", "history.json", "train.log"):
         if (src / extra).exists():
             shutil.copy(src / extra, out / extra)
     model, tensors = load_float32(src, cfg)
@@ -199,6 +216,7 @@ def main(argv=None):
         lr_step=args.lr_step,
         train_clips=int(train.shape[0]),
         frozen_shared=args.freeze_shared,
+        motion_from=args.motion_from,
         qat_s=round(t_train, 1),
         snaps=changes,
         final_val_one_step=hist[-1]["val_one_step"] if hist else None,
@@ -209,7 +227,7 @@ def main(argv=None):
     )
     cfg["qat"]["total_wall_s"] = round(time.time() - t_start, 1)
     (out / "config.json").write_text(json.dumps(cfg, indent=1) + "\n")
-    (out / "history.json").write_text(json.dumps(hist) + "\n")
+    (out / "qat_history.json").write_text(json.dumps(hist) + "\n")
     ref = read_references(src)
     write_references(out, ref["inputs"], ref["rollout_targets"])
     grid_path.unlink()

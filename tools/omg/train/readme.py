@@ -52,15 +52,39 @@ def readme(d: Path) -> str:
         f"Final losses (normalised MSE over the whole frame): train {t['final_train_loss']:.4f} (last epoch, mixed"
         f" teacher forcing/autoregression), validation one-step {t['final_val_one_step']:.4f}.",
         "",
+    ]
+    q = c.get("qat")
+    if q:
+        lines += [
+            f"**Then fine-tuned for its int{q['weight_bits']} blob** (quantisation-aware training, docs/omg.md): the"
+            f" command above, run with `--out {q['source']}`, wrote the model that",
+            "",
+            "```sh",
+            q["command"],
+            "```",
+            "",
+            f"trained it {q['epochs']} epochs more ({q['train_clips']} clips, learning rate {q['lr']}, {q['qat_s']} s)"
+            " with every weight matrix rounded to the blob's grid in each step"
+            + (" (only the autoencoder; the shared nodes on the grid of the motion blob of"
+               f" `{q['motion_from']}`)" if q.get("motion_from") else "")
+            + f", then stored the weights as the blob computes them (snapped {len(q['snaps'])} times until"
+            f" nothing moved). Validation one-step loss after: {q['final_val_one_step']:.4f}. `history.json` and"
+            " `train.log` are the source's training; `qat_history.json` and `qat.log` the fine-tuning's.",
+            "",
+        ]
+    lines += [
         "| file | bytes | content |",
         "|---|---|---|",
     ]
     desc = {
         "model.safetensors": f"layer weights ({c.get('weights_dtype', 'float32')}) and `norm.mean`/`norm.std` (float32);"
         " names and shapes in `tools/omg/omg_np.py`",
-        "config.json": "sizes, slices, out slices, phase-update constant, mode, normalisation, params, MACs, training record",
+        "config.json": "sizes, slices, out slices, phase-update constant, mode, normalisation, params, MACs, training"
+        " (and fine-tuning) record",
         "history.json": "per-epoch losses and autoregression probability",
         "train.log": "training log",
+        "qat_history.json": "per-epoch losses of the quantisation-aware fine-tuning",
+        "qat.log": "quantisation-aware fine-tuning log",
         "rig.json": "the generator's rig description (joints, parents, rest pose), for drawing the skeleton",
         "references.npz": "reference arrays (compressed, float32), below",
     }
