@@ -163,6 +163,21 @@ fn import_errors_name_the_file_and_the_tensor() {
     assert!(!e.contains('\n'));
 }
 
+/// The generated OMG data set (`data/omg`), or `None` with a message
+/// saying that `what` is not checked without it.
+fn omg_data(what: &str) -> Option<PathBuf> {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/omg");
+    if data.join("R1/clips.json").exists() && data.join("R4/clips.json").exists() {
+        return Some(data);
+    }
+    eprintln!(
+        "OMG data set absent at {}: {what} not checked \
+         (python3 -m tools.omg.generate --out data/omg --seed 0 --rigs R1,R4)",
+        data.display()
+    );
+    None
+}
+
 /// `host-sim omg-reach`'s f64 rollouts of the held-out clips give the
 /// NumPy evaluation's figures (`models/omg/eval.json`, grounded mode):
 /// two implementations of the loop and the metrics agree. Needs the data
@@ -171,15 +186,9 @@ fn import_errors_name_the_file_and_the_tensor() {
 #[test]
 fn reach_metrics_match_the_numpy_evaluation() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let data = root.join("data/omg");
-    if !data.join("R1/clips.json").exists() || !data.join("R4/clips.json").exists() {
-        eprintln!(
-            "OMG data set absent at {}: reach metrics not checked \
-             (python3 -m tools.omg.generate --out data/omg --seed 0 --rigs R1,R4)",
-            data.display()
-        );
+    let Some(data) = omg_data("reach metrics") else {
         return;
-    }
+    };
     let eval: serde_json::Value =
         serde_json::from_slice(&std::fs::read(root.join("models/omg/eval.json")).unwrap()).unwrap();
     let knobs = host_sim::quant_knobs::Int8Knobs::default();
@@ -242,16 +251,9 @@ fn reach_metrics_match_the_numpy_evaluation() {
 /// Needs the data set, as the test above.
 #[test]
 fn reach_bars_hold_for_every_committed_model() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let data = root.join("data/omg");
-    if !data.join("R1/clips.json").exists() || !data.join("R4/clips.json").exists() {
-        eprintln!(
-            "OMG data set absent at {}: reach bars not checked \
-             (python3 -m tools.omg.generate --out data/omg --seed 0 --rigs R1,R4)",
-            data.display()
-        );
+    let Some(data) = omg_data("reach bars") else {
         return;
-    }
+    };
     let knobs = host_sim::quant_knobs::Int8Knobs::default();
     let opts = QuantOptions {
         headroom: HEADROOM,
@@ -344,16 +346,9 @@ fn the_f32_reaching_loop_over_the_runtime_follows_the_host_loop() {
 /// closed loop"). Needs the data set, as the test above.
 #[test]
 fn reach_calibration_rollouts_come_from_the_training_clips() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let data = root.join("data/omg");
-    if !data.join("R1/train.npy").exists() {
-        eprintln!(
-            "OMG data set absent at {}: calibration rollouts not checked \
-             (python3 -m tools.omg.generate --out data/omg --seed 0 --rigs R1,R4)",
-            data.display()
-        );
+    let Some(data) = omg_data("calibration rollouts") else {
         return;
-    }
+    };
     let d = load_dir(&model_dir("tiny_fe_r1")).unwrap();
     let width = d.omg.config.model_width;
     let rec = host_sim::omg_reach::train_rollouts(&d, &data, "R1", 3).unwrap();

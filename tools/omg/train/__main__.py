@@ -27,6 +27,7 @@ from safetensors.torch import load_file  # noqa: E402
 
 from .core import (  # noqa: E402
     Frame,
+    open_log,
     config_dict,
     count_params,
     load_rig,
@@ -88,12 +89,7 @@ def main(argv=None):
     np.random.seed(args.seed)
     gen = torch.Generator().manual_seed(args.seed)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    logf = open(out / "train.log", "w")
-
-    def log(msg):
-        print(msg, flush=True)
-        logf.write(msg + "\n")
+    log = open_log(out, "train.log")
 
     t_start = time.time()
     lay, sp = load_rig(args.data, args.rig)

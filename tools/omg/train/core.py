@@ -17,6 +17,20 @@ SEQ_LEN = 13  # frames per training chunk (299 = 23 x 13)
 STD_FLOOR = 1e-4  # features with a smaller std over the training frames are constant: std := 1
 
 
+def open_log(out: Path, name: str):
+    """Creates ``out`` and returns ``log(msg)``, which prints a line and appends it to
+    ``out / name``."""
+    out.mkdir(parents=True, exist_ok=True)
+    f = open(out / name, "w")
+
+    def log(msg):
+        print(msg, flush=True)
+        f.write(msg + "\n")
+        f.flush()
+
+    return log
+
+
 # ----------------------------------------------------------------------------------------
 # data
 

@@ -46,7 +46,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from safetensors.torch import load_file  # noqa: E402
 
-from .core import Frame, grid_round, load_rig, model_slices, restore, train_omg  # noqa: E402
+from .core import Frame, grid_round, load_rig, model_slices, open_log, restore, train_omg  # noqa: E402
 from .model import OMG  # noqa: E402
 from .references import read_references, save_weights, write_references  # noqa: E402
 
@@ -147,12 +147,7 @@ def main(argv=None):
     src, out = Path(args.source), Path(args.out)
     if src.resolve() == out.resolve():
         raise SystemExit("--out must differ from --from (the source's weights are read throughout)")
-    out.mkdir(parents=True, exist_ok=True)
-    logf = open(out / "qat.log", "w")
-
-    def log(msg):
-        print(msg, flush=True)
-        logf.write(msg + "\n")
+    log = open_log(out, "qat.log")
 
     t_start = time.time()
     cfg = json.loads((src / "config.json").read_text())
