@@ -11,7 +11,8 @@ the result is stored **snapped**: every dense weight and bias as the blob comput
 model then is the int8 model, and its blob differs from its f64 forward only in the
 activations' fixed point.
 
-Steps, all in ``--out``:
+Steps (made in ``<out>.partial`` and moved into ``--out`` at the end, so that a failed run
+leaves ``--out`` as it was):
 
 1. ``exporter omg --grid-out`` gives the grid (the integer units of each weight's input
    column; a row's scale follows its largest weight, as the exporter's).
@@ -144,9 +145,14 @@ def main(argv=None):
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     gen = torch.Generator().manual_seed(args.seed)
-    src, out = Path(args.source), Path(args.out)
-    if src.resolve() == out.resolve():
+    src, final = Path(args.source), Path(args.out)
+    if src.resolve() == final.resolve():
         raise SystemExit("--out must differ from --from (the source's weights are read throughout)")
+    if shutil.which(args.exporter) is None:
+        raise SystemExit(f"{args.exporter}: no exporter binary there (cargo build --release -p exporter, or --exporter PATH)")
+    # everything is made beside --out and moved in at the end: a failed run leaves --out as it was
+    out = final.with_name(final.name + ".partial")
+    shutil.rmtree(out, ignore_errors=True)
     log = open_log(out, "qat.log")
 
     t_start = time.time()
@@ -226,7 +232,11 @@ def main(argv=None):
     ref = read_references(src)
     write_references(out, ref["inputs"], ref["rollout_targets"])
     grid_path.unlink()
-    log(f"wrote {out} ({time.time() - t_start:.1f} s total)")
+    final.mkdir(parents=True, exist_ok=True)
+    for f in sorted(out.iterdir()):
+        os.replace(f, final / f.name)
+    out.rmdir()
+    log(f"wrote {final} ({time.time() - t_start:.1f} s total)")
 
 
 if __name__ == "__main__":
