@@ -226,6 +226,7 @@ def train_omg(
     validation loss: its model is the one being trained."""
     params = list(params if params is not None else model.parameters())
     noise = getattr(args, "weight_noise", 0.0)
+    feedback_noise = getattr(args, "feedback_noise", 0.0)
     # a given perturbation is the model being trained (QAT): validate it too
     validate_perturbed = perturb is not None
     if perturb is None and noise > 0:
@@ -264,6 +265,11 @@ def train_omg(
                 cnt += 1
                 # scheduled autoregression: uniform draw per chunk (spec §1.6 [T])
                 fb = fr.feed_back(out, x[:, i, fr.tgt])
+                if feedback_noise > 0:
+                    # a perturbed state to recover from (the targets stay the data's)
+                    kick = torch.randn(fb.shape, generator=gen) * feedback_noise
+                    kick[:, fr.tgt] = 0.0
+                    fb = fb + kick
                 ar = torch.rand(xc.shape[0], generator=gen) < p
                 xc = torch.where(ar[:, None], fb, x[:, i])
         put_back = perturb() if validate_perturbed else None

@@ -67,6 +67,9 @@ def parse(argv=None):
     a.add_argument("--lr-step", type=int, default=700)
     a.add_argument("--batch", type=int, default=32)
     a.add_argument("--weight-bits", type=int, default=8, choices=sorted(QMAX))
+    a.add_argument("--feedback-noise", type=float, default=0.0,
+                   help="standard deviation (normalised units) of Gaussian noise on the fed-back frame in "
+                   "training, targets excepted (0: off; an experiment, docs/omg.md)")
     a.add_argument("--freeze-shared", action="store_true", help="train only the autoencoder")
     a.add_argument("--train-share", type=float, default=None,
                    help="share of the training clips (default: the source's, with its rows)")
@@ -193,7 +196,7 @@ def main(argv=None):
     train_args = argparse.Namespace(
         epochs=args.epochs, lr=args.lr, lr_step=args.lr_step, batch=args.batch,
         # fully autoregressive after the first epoch, as the source's last epochs were
-        ar_inc=1.0, ar_every=1, weight_noise=0.0,
+        ar_inc=1.0, ar_every=1, weight_noise=0.0, feedback_noise=args.feedback_noise,
     )
     t0 = time.time()
     hist = train_omg(model, fr, train_n, val_n, train_args, gen, log, params,
