@@ -381,6 +381,7 @@ pub fn measure(
     let width = d.omg.config.model_width;
     let held = match train_clips {
         None => HeldOut::read(data, &rig, width)?,
+        Some(0) => bail!("--train-clips 0: judge on at least one training clip"),
         Some(n) => HeldOut::read_splits(data, &rig, width, &["train"], n)?,
     };
     let float = rollouts(&d, &held, &mut FloatOmg(&d.omg), "f64")?;
@@ -424,7 +425,10 @@ pub fn measure(
                 ("int16 rig", WeightFormat::I16),
                 ("int8 rig", WeightFormat::I8),
             ] {
-                let rig_opts = crate::omg::exporter_options(w);
+                let rig_opts = QuantOptions {
+                    weights: w,
+                    ..opts.clone()
+                };
                 let motion = crate::omg::export(&source, w, &rig_opts)?;
                 let (rig_blob, _) = exporter::progress::during("exporting the rig blob", || {
                     exporter::rig::export_rig(&d.omg.net, &motion, mask, "rig", &rig_opts)

@@ -297,6 +297,38 @@ fn reach_bars_hold_for_every_committed_model() {
     }
 }
 
+/// `omg-reach --train-clips N` judges on the first N clips of the training
+/// split (to choose among fine-tuning runs without the held-out clips), and
+/// refuses none; `--motion-from` refuses the int8 knobs, which its rig
+/// blobs do not take.
+#[test]
+fn reach_on_training_clips_and_its_refusals() {
+    let Some(data) = omg_data("training-clip reach") else {
+        return;
+    };
+    let opts = QuantOptions {
+        headroom: HEADROOM,
+        ..QuantOptions::default()
+    };
+    let none = host_sim::quant_knobs::Int8Knobs::default();
+    let dir = model_dir("tiny_fe_r1");
+    let r = host_sim::omg_reach::measure(&dir, &data, &opts, &none, None, Some(2)).unwrap();
+    assert_eq!((r.clips, r.split.as_str()), (2, "training"));
+    for b in r.rows.iter().filter(|x| x.vs_f64.is_some()) {
+        assert_eq!(b.vs_f64.as_ref().unwrap().frames, 2 * 300, "{}", b.run);
+    }
+    let e = host_sim::omg_reach::measure(&dir, &data, &opts, &none, None, Some(0)).unwrap_err();
+    assert!(e.to_string().contains("--train-clips 0"), "{e}");
+    let knobs = host_sim::quant_knobs::Int8Knobs {
+        int16_budget: Some(1000),
+        ..Default::default()
+    };
+    let r4 = model_dir("tiny_fe_r4_frozen");
+    let e =
+        host_sim::omg_reach::measure(&r4, &data, &opts, &knobs, Some(&dir), Some(1)).unwrap_err();
+    assert!(e.to_string().contains("leave out the int8 knobs"), "{e}");
+}
+
 /// The device's configuration of the reaching controller: the loop in f32
 /// (`Reach<f32, _>`) over the fixed-point runtime, sized statically for
 /// the model, follows the host's loop over the same blob (f64 glue) on
