@@ -52,15 +52,10 @@ struct OmgRigArgs {
     /// directory name).
     #[arg(long)]
     name: Option<String>,
-    /// Weight width of the rig's nodes.
-    #[arg(long, default_value_t = 8, value_parser = parse_bits)]
-    weight_bits: u8,
-    /// Where to write the rig blob.
-    #[arg(short = 'o', long = "output")]
-    output: PathBuf,
-    /// Also write a JSON report (sizes, nodes, RAM of the combination).
-    #[arg(long)]
-    report: Option<PathBuf>,
+    /// The rig blob (the weight width of its nodes) and its report (sizes,
+    /// nodes, RAM of the combination).
+    #[command(flatten)]
+    blob: BlobArgs,
     /// The grid of the rig's nodes is the rig blob's, of the others the
     /// motion blob's.
     #[command(flatten)]
@@ -81,17 +76,25 @@ struct GridArgs {
     grid_out: Option<PathBuf>,
 }
 
+/// The blob a command writes, its weight width and its report.
 #[derive(clap::Args)]
-struct OutputArgs {
+struct BlobArgs {
     /// Weight width.
     #[arg(long, default_value_t = 8, value_parser = parse_bits)]
     weight_bits: u8,
     /// Where to write the blob.
     #[arg(short = 'o', long = "output")]
     output: PathBuf,
-    /// Also write a JSON report (sizes, SQNR per layer, residual, overflow proof).
+    /// Also write a JSON report (sizes, SQNR per layer, residual, overflow
+    /// proof; for a rig blob its nodes and the pair's RAM).
     #[arg(long)]
     report: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct OutputArgs {
+    #[command(flatten)]
+    blob: BlobArgs,
     /// Raw inputs within mean +- this many standard deviations quantise
     /// without clipping (rounded up to a power of two; wider = coarser).
     #[arg(long, default_value_t = 8.0)]
@@ -239,7 +242,7 @@ fn load_pfnn_dir(
 
 /// The quantiser's options that `q` asks for on `net`.
 fn quant_options(net: &Net, q: &OutputArgs, default_headroom: f64) -> Result<QuantOptions> {
-    let weights = if q.weight_bits == 16 {
+    let weights = if q.blob.weight_bits == 16 {
         WeightFormat::I16
     } else {
         WeightFormat::I8
@@ -378,12 +381,12 @@ fn export(
         .as_ref()
         .and_then(|c| c.warning.as_ref())
     {
-        eprintln!("{}: {w}", q.output.display());
+        eprintln!("{}: {w}", q.blob.output.display());
     }
     if std::io::stdout().is_terminal() || std::env::var_os("PHASEGATE_VERBOSE").is_some() {
-        summary(&report, &q.output);
+        summary(&report, &q.blob.output);
     } else {
-        println!("{}: {} bytes", q.output.display(), report.blob_bytes);
+        println!("{}: {} bytes", q.blob.output.display(), report.blob_bytes);
     }
     Ok(())
 }
@@ -391,12 +394,12 @@ fn export(
 /// Both files or neither: the report goes first, and is removed again if
 /// the blob cannot be written.
 fn write_outputs(blob: &[u8], report: &ExportReport, q: &OutputArgs) -> Result<()> {
-    if let Some(path) = &q.report {
+    if let Some(path) = &q.blob.report {
         let json = serde_json::to_vec_pretty(report)?;
         exporter::atomic::write_atomic(path, &json)?;
     }
-    if let Err(e) = exporter::atomic::write_atomic(&q.output, blob) {
-        if let Some(path) = &q.report {
+    if let Err(e) = exporter::atomic::write_atomic(&q.blob.output, blob) {
+        if let Some(path) = &q.blob.report {
             let _ = std::fs::remove_file(path);
         }
         return Err(e);
@@ -447,9 +450,11 @@ fn omg_rig(a: &OmgRigArgs) -> Result<()> {
         weights,
         config,
         name,
-        weight_bits,
-        output,
-        report,
+        blob: BlobArgs {
+            weight_bits,
+            output,
+            report,
+        },
         grid,
     } = a;
     let (base, weights, config, report) = (
