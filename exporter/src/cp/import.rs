@@ -92,6 +92,11 @@ pub fn parse_safetensors(bytes: &[u8]) -> Result<BTreeMap<String, NpArray>> {
 /// Writes f32 arrays as a `.safetensors` file (the layout
 /// `safetensors.torch.save_file` writes), atomically.
 pub fn write_safetensors(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> Result<()> {
+    crate::atomic::write_atomic(path, &safetensors_bytes(arrays)?)
+}
+
+/// f32 arrays as the bytes of a `.safetensors` file.
+pub fn safetensors_bytes(arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> Result<Vec<u8>> {
     let bytes: Vec<(String, Vec<u8>, Vec<usize>)> = arrays
         .iter()
         .map(|(name, shape, data)| {
@@ -110,8 +115,7 @@ pub fn write_safetensors(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> 
                 .map_err(|e| anyhow!("tensor {name}: {e}"))
         })
         .collect::<Result<Vec<_>>>()?;
-    let out = safetensors::serialize(views, None).map_err(|e| anyhow!("{e}"))?;
-    crate::atomic::write_atomic(path, &out)
+    safetensors::serialize(views, None).map_err(|e| anyhow!("{e}"))
 }
 
 /// Writes `.npz` or `.safetensors` (by extension).

@@ -193,28 +193,14 @@ fn tensors(d: &ExpertLayer, p: &Place) -> Result<(NpArray, NpArray)> {
 /// is an integer times a power of two over a row scale: float32 keeps it to
 /// within 2^-24 of itself, which rounds back to the same integer).
 pub fn to_safetensors(arrays: &BTreeMap<String, NpArray>) -> Result<Vec<u8>> {
-    let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = arrays
+    let list: Vec<(&str, Vec<u64>, Vec<f32>)> = arrays
         .iter()
         .map(|(n, a)| {
-            (
-                n.clone(),
-                a.shape.iter().map(|&d| d as usize).collect(),
-                a.data
-                    .iter()
-                    .flat_map(|&v| (v as f32).to_le_bytes())
-                    .collect(),
-            )
+            let data = a.data.iter().map(|&v| v as f32).collect();
+            (n.as_str(), a.shape.clone(), data)
         })
         .collect();
-    let views = bytes
-        .iter()
-        .map(|(n, shape, data)| {
-            safetensors::tensor::TensorView::new(safetensors::Dtype::F32, shape.clone(), data)
-                .map(|v| (n.clone(), v))
-                .map_err(|e| anyhow!("tensor {n}: {e}"))
-        })
-        .collect::<Result<Vec<_>>>()?;
-    safetensors::serialize(views, None).map_err(|e| anyhow!("safetensors: {e}"))
+    crate::cp::import::safetensors_bytes(&list)
 }
 
 #[cfg(test)]
