@@ -6,7 +6,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tools.omg.train.core import int8_noise, remove_noise, weight_matrices  # noqa: E402
+from tools.omg.train.core import int8_noise, restore, weight_matrices  # noqa: E402
 from tools.omg.train.model import OMG  # noqa: E402
 
 SLICES = {"phase": (0, 8), "pose": (8, 20), "cost": (20, 44), "target": (44, 80)}
@@ -26,6 +26,6 @@ def test_noise_is_within_half_a_step_per_row_and_comes_off_exactly(variant):
         moved = (w.detach() - w0).abs()
         assert torch.all(moved <= step / 2 * (1 + 1e-5))
         assert moved.max() > 0
-    remove_noise(model, clean)
+    restore(clean)
     for (w, _), w0 in zip(weight_matrices(model), before):
         assert torch.equal(w.detach(), w0)

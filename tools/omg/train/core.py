@@ -164,22 +164,16 @@ def weight_matrices(model: OMG) -> list:
 def int8_noise(model: OMG, amount: float, gen) -> list:
     """Adds to every weight matrix uniform noise of ``amount`` int8 steps peak to peak
     (a step is a row's largest magnitude / 127, the exporter's per-row scale before its
-    search), in place; returns the clean weights so that ``remove_noise`` restores them
-    bit for bit. Training through such perturbations asks for rollouts that survive
-    int8 weights."""
+    search), in place; returns the clean weights so that ``restore`` puts them back bit
+    for bit. Training through such perturbations asks for rollouts that survive int8
+    weights."""
     clean = []
     with torch.no_grad():
         for w, axis in weight_matrices(model):
-            clean.append(w.detach().clone())
+            clean.append((w, w.detach().clone()))
             step = w.abs().amax(dim=axis, keepdim=True) / 127.0
             w.add_((torch.rand(w.shape, generator=gen) - 0.5) * amount * step)
     return clean
-
-
-def remove_noise(model: OMG, clean: list):
-    with torch.no_grad():
-        for (w, _), c in zip(weight_matrices(model), clean):
-            w.copy_(c)
 
 
 def grid_round(model: OMG, grid: dict, qmax: float) -> list:
@@ -210,7 +204,7 @@ def grid_round(model: OMG, grid: dict, qmax: float) -> list:
 
 
 def restore(clean: list):
-    """Puts back the weights ``grid_round`` took."""
+    """Puts back the weights ``int8_noise`` or ``grid_round`` changed."""
     with torch.no_grad():
         for w, c in clean:
             w.copy_(c)
@@ -220,8 +214,8 @@ def train_omg(
     model: OMG, fr: Frame, train_n: torch.Tensor, val_n: torch.Tensor, args, gen, log, params=None, perturb=None
 ):
     """The OMG stage. ``perturb()``, when given, changes the weights in place before every
-    step and returns what puts them back; the step's gradient, taken at the changed
-    weights, updates the restored ones (``--weight-noise`` and quantisation-aware
+    step and returns the clean ones (``int8_noise``, ``grid_round``); the step's gradient,
+    taken at the changed weights, updates the restored ones (``--weight-noise`` and quantisation-aware
     fine-tuning, ``tools.omg.train.qat``). A given ``perturb`` also applies to the
     validation loss: its model is the one being trained."""
     params = list(params if params is not None else model.parameters())
@@ -232,8 +226,7 @@ def train_omg(
     if perturb is None and noise > 0:
 
         def perturb():
-            clean = int8_noise(model, noise, gen)
-            return lambda: remove_noise(model, clean)
+            return int8_noise(model, noise, gen)
 
     opt = torch.optim.AdamW(params, lr=args.lr)
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=args.lr_step, gamma=0.9)
@@ -251,14 +244,14 @@ def train_omg(
             y = X[:, 1:].reshape(-1, SEQ_LEN, n)
             xc = x[:, 0]
             for i in range(1, SEQ_LEN):
-                put_back = perturb() if perturb is not None else None
+                clean = perturb() if perturb is not None else None
                 out = model(xc)
                 loss = F.mse_loss(out, y[:, i - 1]) + model.extra_loss()
                 opt.zero_grad()
                 loss.backward()
-                if put_back is not None:
+                if clean is not None:
                     # the gradient at the perturbed weights updates the clean ones
-                    put_back()
+                    restore(clean)
                 opt.step()
                 sched.step()
                 tot += loss.item()
@@ -272,10 +265,10 @@ def train_omg(
                     fb = fb + kick
                 ar = torch.rand(xc.shape[0], generator=gen) < p
                 xc = torch.where(ar[:, None], fb, x[:, i])
-        put_back = perturb() if validate_perturbed else None
+        clean = perturb() if validate_perturbed else None
         vl = one_step_loss(model, val_n)
-        if put_back is not None:
-            put_back()
+        if clean is not None:
+            restore(clean)
         history.append(dict(epoch=ep, p=p, train=tot / cnt, val_one_step=vl, s=time.time() - t0))
         log(f"  epoch {ep:3d} p {p:.1f} train {tot / cnt:.5f} val(one-step) {vl:.5f} ({time.time() - t0:.1f} s)")
     return history

@@ -47,9 +47,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from safetensors.torch import load_file  # noqa: E402
 
-from .core import Frame, grid_round, load_rig, model_slices, open_log, restore, train_omg  # noqa: E402
-from .model import OMG  # noqa: E402
-from .references import read_references, save_weights, write_references  # noqa: E402
+from .core import Frame, grid_round, load_rig, model_slices, open_log, train_omg  # noqa: E402
+from .references import load_model, read_references, save_weights, write_references  # noqa: E402
 
 QMAX = {8: 127.0, 16: 32767.0}
 # A snapped weight is k * u_j / s_i stored as float32: snapping it again may move it by
@@ -110,20 +109,6 @@ def exporter(args, model_dir: Path, *extra: str) -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def load_float32(model_dir: Path, cfg: dict) -> tuple[OMG, dict]:
-    args = cfg["training"]["args"]
-    slices = {k: tuple(v) for k, v in cfg["slices"].items()}
-    model = OMG(slices, variant=cfg["variant"], size=args["size"], k=cfg["sizes"]["experts"],
-                enc_cols=cfg.get("encoder_columns"))
-    tensors = load_file(str(model_dir / "model.safetensors"))
-    with torch.no_grad():
-        for name, p in model.named_tensors().items():
-            if name not in tensors or tuple(tensors[name].shape) != tuple(p.shape):
-                raise SystemExit(f"{model_dir / 'model.safetensors'}: {name} missing or of another shape")
-            p.copy_(tensors[name].float())
-    return model, tensors
-
-
 def snap_until_fixed(args, out: Path, log) -> list:
     """Replaces ``out``'s weights by their blob's until that changes nothing; returns the
     largest change of each snap."""
@@ -165,7 +150,8 @@ def main(argv=None):
     for extra in ("rig.json", "history.json", "train.log"):
         if (src / extra).exists():
             shutil.copy(src / extra, out / extra)
-    model, tensors = load_float32(src, cfg)
+    model, _, _ = load_model(src, torch.float32)
+    tensors = load_file(str(src / "model.safetensors"))
     save_weights({k: v.float() for k, v in tensors.items()}, out / "model.safetensors", "float32")
 
     grid_path = out / "grid.json"
@@ -200,7 +186,7 @@ def main(argv=None):
     )
     t0 = time.time()
     hist = train_omg(model, fr, train_n, val_n, train_args, gen, log, params,
-                     perturb=lambda: (lambda c: lambda: restore(c))(grid_round(model, grid, qmax)))
+                     perturb=lambda: grid_round(model, grid, qmax))
     t_train = time.time() - t0
     log(f"QAT {t_train:.1f} s")
 

@@ -67,8 +67,9 @@ def save_weights(tensors: dict, path: Path, dtype: str) -> dict:
     return stored
 
 
-def load_model(model_dir: Path) -> tuple[OMG, Frame, dict]:
-    """The stored model in float64 and its grounded feed-back rule."""
+def load_model(model_dir: Path, dtype=torch.float64) -> tuple[OMG, Frame, dict]:
+    """The stored model in ``dtype`` (float64: the references' precision) and its grounded
+    feed-back rule."""
     cfg = json.loads((model_dir / "config.json").read_text())
     args = cfg["training"]["args"]
     slices = {k: tuple(v) for k, v in cfg["slices"].items()}
@@ -79,7 +80,7 @@ def load_model(model_dir: Path) -> tuple[OMG, Frame, dict]:
     missing = sorted(set(live) - set(tensors))
     if missing:
         raise SystemExit(f"{model_dir / 'model.safetensors'}: missing tensors {missing}")
-    model = model.double().eval()
+    model = model.to(dtype).eval()
     live = model.named_tensors()
     with torch.no_grad():
         for name, p in live.items():
@@ -88,8 +89,8 @@ def load_model(model_dir: Path) -> tuple[OMG, Frame, dict]:
                     f"{model_dir / 'model.safetensors'}: {name} has shape {tuple(tensors[name].shape)}, "
                     f"the config wants {tuple(p.shape)}"
                 )
-            # float16/float32 -> float64 is exact: the model is the stored one.
-            p.copy_(tensors[name].double())
+            # float16/float32 -> float64 (or float32 -> float32) is exact: the model is the stored one.
+            p.copy_(tensors[name].to(dtype))
     mean = tensors["norm.mean"].double()
     std = tensors["norm.std"].double()
     fr = Frame(slices, mean, std, cfg["key_joint_indices"], cfg["J"], "grounded")
