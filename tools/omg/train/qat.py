@@ -68,7 +68,7 @@ def parse(argv=None):
     a.add_argument("--weight-bits", type=int, default=8, choices=sorted(QMAX))
     a.add_argument("--feedback-noise", type=float, default=0.0,
                    help="standard deviation (normalised units) of Gaussian noise on the fed-back frame in "
-                   "training, targets excepted (0: off; an experiment, docs/omg.md)")
+                   "training, targets excepted (0: off; one of the candidates tools.omg.train.choose judges)")
     a.add_argument("--freeze-shared", action="store_true", help="train only the autoencoder")
     a.add_argument("--train-share", type=float, default=None,
                    help="share of the training clips (default: the source's, with its rows)")
@@ -207,6 +207,7 @@ def main(argv=None):
         train_clips=int(train.shape[0]),
         frozen_shared=args.freeze_shared,
         motion_from=args.motion_from,
+        feedback_noise=args.feedback_noise,
         qat_s=round(t_train, 1),
         snaps=changes,
         final_val_one_step=hist[-1]["val_one_step"] if hist else None,

@@ -67,6 +67,8 @@ def readme(d: Path) -> str:
             " with every weight matrix rounded to the blob's grid in each step"
             + (" (only the autoencoder; the shared nodes on the grid of the motion blob of"
                f" `{q['motion_from']}`)" if q.get("motion_from") else "")
+            + (f" and Gaussian noise of standard deviation {q['feedback_noise']} (normalised units) on every"
+               " fed-back frame" if q.get("feedback_noise") else "")
             + f", then stored the weights as the blob computes them (snapped {len(q['snaps'])} times until"
             f" nothing moved). Validation one-step loss after: {q['final_val_one_step']:.4f}. `history.json` and"
             " `train.log` are the source's training; `qat_history.json` and `qat.log` the fine-tuning's.",
