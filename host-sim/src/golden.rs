@@ -9,7 +9,7 @@
 //! | `dense-int16` | the same network | dense x3 | int16 |
 //! | `cp-diagonal` | a synthetic 48 -> 40 -> 40 -> 24 network | CP (rank 12), diagonal, CP (rank 6) | int8 |
 //! | `omg-tiny-fe-r1` | the trained tiny FE-OMG model (`models/omg/tiny_fe_r1`, `host-sim demo`'s), 440 -> 404, on its first 64 reference frames | dense x15 (MLPs, 4-expert layers), softmax gate | int8 |
-//! | `omg-small-rbfcat-r1` | the committed small RBF-CAT OMG model (`models/omg/small_rbfcat_r1`), 440 -> 404, on the first 64 frames of its reference rollout | dense x15, RBF (16 clusters over the 64-wide latent), softmax gate | int8 (RBF centres int16) |
+//! | `omg-small-rbfcat-r1` | the committed small RBF-CAT OMG model (`models/omg/small_rbfcat_r1`), 440 -> 404, on the first 64 frames of its reference rollout | dense x15, RBF (32 clusters over the 64-wide latent), softmax gate | int8 (RBF centres int16) |
 //! | `dec-graph` | a synthetic graph with OMG's DEC clustering layer (`synthetic::clustering_net`: encoder 6 -> 32, soft assignment to 16 centres, head on `[q, z]` -> 5) | dense x2, DEC | int8 (DEC centres int16) |
 //! | `softmax-graph` | the branching proof model (`synthetic::branching_net`: gating MLP -> softmax; two encoders -> concatenation -> three softmax-gated layers -> decoder on a slice), 40 -> 10 | dense x12, softmax gate | int8 |
 //!
