@@ -180,6 +180,8 @@ def main(argv=None):
             print(f"measuring {r['name']} on the held-out clips", flush=True)
             r["held_out"] = reach(args, Path(r["dir"]), None)
     print(table(runs, kept))
+    if args.json:
+        Path(args.json).write_text(json.dumps(dict(kept=kept, runs=runs), indent=1) + "\n")
     if kept is None:
         raise SystemExit(f"{name}: every run is out (reach more than 2 points from f64 on the training clips)")
     print(f"kept: {kept}")
@@ -192,8 +194,6 @@ def main(argv=None):
         if made.read_bytes() != want.read_bytes():
             raise SystemExit(f"{made}: differs from the candidate {want} (the runs should be deterministic)")
         print(f"wrote {args.out} (byte-identical to {k['dir']})")
-    if args.json:
-        Path(args.json).write_text(json.dumps(dict(kept=kept, runs=runs), indent=1) + "\n")
 
 
 if __name__ == "__main__":
