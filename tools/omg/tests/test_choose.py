@@ -1,8 +1,13 @@
 """The rule that chooses a fine-tuning run on the training clips (``tools.omg.train.choose``):
 reach first, then the larger bar ratio, ties to less noise and the larger learning rate; and
-the figures it reads from ``host-sim omg-reach --json``. No PyTorch needed."""
+the figures it reads from ``host-sim omg-reach --json``; and that every committed fine-tuned
+model is the run its ``choice.json`` keeps. No PyTorch needed."""
 
+import json
+from pathlib import Path
 from types import SimpleNamespace
+
+import pytest
 
 from tools.omg.train.choose import choose, figures, meets_bars, qat, ratio
 
@@ -79,3 +84,32 @@ def test_the_fine_tuning_command_leaves_out_qats_defaults():
     cmd = qat(args, "1e-4", "0.02", "out/y")
     assert cmd[5:8] == ["--motion-from", "models/omg/m", "--freeze-shared"]
     assert cmd[-6:] == ["--lr", "1e-4", "--feedback-noise", "0.02", "--out", "out/y"]
+
+
+ROOT = Path(__file__).resolve().parents[3]
+FINE_TUNED = sorted(p.parent for p in (ROOT / "models" / "omg").glob("*/config.json")
+                    if "qat" in json.loads(p.read_text()))
+
+
+def test_the_committed_models_are_fine_tuned_and_the_fs_model_is_one():
+    assert {"tiny_fe_r1", "small_fe_r1", "small_rbfcat_r1", "tiny_fs_r1", "tiny_fe_r4_frozen"} <= {
+        p.name for p in FINE_TUNED}
+
+
+@pytest.mark.parametrize("d", FINE_TUNED, ids=[p.name for p in FINE_TUNED])
+def test_each_committed_model_is_the_run_its_choice_json_keeps(d):
+    """``choice.json`` (written by ``tools.omg.train.choose --out``) holds the six runs' figures;
+    the rule applied to them keeps the run the record names, and that run's learning rate and
+    feed-back noise are the committed model's."""
+    rec = json.loads((d / "choice.json").read_text())
+    qat_record = json.loads((d / "config.json").read_text())["qat"]
+    assert len(rec["runs"]) == 6
+    assert {(r["lr"], r["noise"]) for r in rec["runs"]} == {
+        (lr, s) for lr in (2e-4, 1e-4) for s in (0.0, 0.02, 0.05)}
+    for r in rec["runs"]:
+        assert (r["split"], r["clips"]) == ("training", 192)
+        assert (r["held_out"]["split"], r["held_out"]["clips"]) == ("held-out", 48)
+    assert choose(rec["runs"]) == rec["kept"]
+    kept = next(r for r in rec["runs"] if r["name"] == rec["kept"])
+    assert kept["lr"] == qat_record["lr"]
+    assert kept["noise"] == qat_record["feedback_noise"]

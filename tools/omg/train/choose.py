@@ -20,7 +20,8 @@ trained for their int8 blobs"):
    rate.
 
 With ``--out`` the kept run is made again there (its command then names ``--out``) and must come
-out byte for byte as the candidate did. ``--held-out`` also measures every run on the held-out
+out byte for byte as the candidate did; ``choice.json`` beside it records every run's figures,
+the rule and the kept run. ``--held-out`` also measures every run on the held-out
 clips, after the choice, for the report.
 """
 
@@ -39,6 +40,9 @@ from pathlib import Path
 REACH_BAR = 0.02
 P99_BAR_M = {"int16": 0.01, "int8": 0.02}
 TIE = 1e-3
+RULE = ("on the rig's training clips: out if int16 or int8 reach differs from f64 reach by more than 2 points; "
+        "of the rest the smallest max(int16 p99 / 1 cm, int8 p99 / 2 cm) against the f64 rollout, ties (0.001) "
+        "to less noise, then the larger learning rate (tools/omg/train/choose.py, docs/omg.md)")
 # tools.omg.train.qat's defaults (not imported: qat needs PyTorch, the rule does not)
 QAT_LR = 2e-4
 QAT_EXPORTER = "target/release/exporter"
@@ -180,8 +184,9 @@ def main(argv=None):
             print(f"measuring {r['name']} on the held-out clips", flush=True)
             r["held_out"] = reach(args, Path(r["dir"]), None)
     print(table(runs, kept))
+    record = dict(kept=kept, rule=RULE, runs=runs)
     if args.json:
-        Path(args.json).write_text(json.dumps(dict(kept=kept, runs=runs), indent=1) + "\n")
+        Path(args.json).write_text(json.dumps(record, indent=1) + "\n")
     if kept is None:
         raise SystemExit(f"{name}: every run is out (reach more than 2 points from f64 on the training clips)")
     print(f"kept: {kept}")
@@ -193,7 +198,9 @@ def main(argv=None):
         made, want = Path(args.out) / "model.safetensors", Path(k["dir"]) / "model.safetensors"
         if made.read_bytes() != want.read_bytes():
             raise SystemExit(f"{made}: differs from the candidate {want} (the runs should be deterministic)")
-        print(f"wrote {args.out} (byte-identical to {k['dir']})")
+        # the evidence of the choice stays with the model
+        (Path(args.out) / "choice.json").write_text(json.dumps(record, indent=1) + "\n")
+        print(f"wrote {args.out} (byte-identical to {k['dir']}) and its choice.json")
 
 
 if __name__ == "__main__":

@@ -89,6 +89,8 @@ def readme(d: Path) -> str:
         "qat.log": "quantisation-aware fine-tuning log",
         "rig.json": "the generator's rig description (joints, parents, rest pose), for drawing the skeleton",
         "references.npz": "reference arrays (compressed, float32), below",
+        "choice.json": "the fine-tuning runs this model was chosen among (`tools.omg.train.choose`): each run's"
+        " figures on the training clips, which chose, and on the held-out clips, measured after; the rule; the kept run",
     }
     for f in files:
         desc_f = desc.get(f, desc.get(f.rsplit(".", 1)[0], ""))
