@@ -44,20 +44,6 @@ def test_ties_go_to_less_noise_then_to_the_larger_learning_rate():
     assert choose([run("clearly", 1e-4, 0.05, 0.498, 0.2), quiet_fast]) == "clearly"
 
 
-def test_the_committed_choices_of_docs_omg_md():
-    """The training-clip figures of the tiny FS and small RBF-CAT runs (docs/omg.md, the table of
-    all 30 runs): the rule keeps 2e-4 with noise 0.05 for both, though for RBF-CAT the held-out
-    clips would have preferred 1e-4 without noise."""
-    fs = [run("2e-4/0", 2e-4, 0.0, 0.577, 1.386), run("1e-4/0", 1e-4, 0.0, 2.087, 4.996),
-          run("2e-4/0.02", 2e-4, 0.02, 0.749, 3.175), run("1e-4/0.02", 1e-4, 0.02, 1.030, 4.987),
-          run("2e-4/0.05", 2e-4, 0.05, 0.450, 0.448), run("1e-4/0.05", 1e-4, 0.05, 1.086, 2.412)]
-    assert choose(fs) == "2e-4/0.05"
-    rbf = [run("2e-4/0", 2e-4, 0.0, 1.839, 1.747), run("1e-4/0", 1e-4, 0.0, 1.341, 1.417),
-           run("2e-4/0.02", 2e-4, 0.02, 6.993, 7.047), run("1e-4/0.02", 1e-4, 0.02, 4.109, 4.303),
-           run("2e-4/0.05", 2e-4, 0.05, 1.041, 1.007), run("1e-4/0.05", 1e-4, 0.05, 4.606, 4.198)]
-    assert choose(rbf) == "2e-4/0.05"
-
-
 def test_figures_read_whole_blobs_and_rig_pairs_alike():
     def entry(suffix):
         def row(name, reach, p99=None):
