@@ -30,10 +30,11 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from .proc import EXPORTER, QAT_LR, run
 
 # issue 11's bars: reach within 2 percentage points of f64, p99 joint difference to the f64
 # rollout within 1 cm (int16) and 2 cm (int8)
@@ -43,9 +44,6 @@ TIE = 1e-3
 RULE = ("on the rig's training clips: out if int16 or int8 reach differs from f64 reach by more than 2 points; "
         "of the rest the smallest max(int16 p99 / 1 cm, int8 p99 / 2 cm) against the f64 rollout, ties (0.001) "
         "to less noise, then the larger learning rate (tools/omg/train/choose.py, docs/omg.md)")
-# tools.omg.train.qat's defaults (not imported: qat needs PyTorch, the rule does not)
-QAT_LR = 2e-4
-QAT_EXPORTER = "target/release/exporter"
 
 
 def parse(argv=None):
@@ -64,7 +62,7 @@ def parse(argv=None):
     a.add_argument("--held-out", action="store_true", help="also measure every run on the held-out clips, for the report")
     a.add_argument("--json", default=None, help="write every run's figures and the choice")
     a.add_argument("--host-sim", default="target/release/host-sim")
-    a.add_argument("--exporter", default="target/release/exporter")
+    a.add_argument("--exporter", default=EXPORTER)
     return a.parse_args(argv)
 
 
@@ -105,12 +103,6 @@ def choose(runs: list) -> str | None:
     return None if best is None else best["name"]
 
 
-def run(cmd: list) -> None:
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise SystemExit(f"{' '.join(map(str, cmd))}: {r.stderr.strip() or r.stdout.strip()}")
-
-
 def qat(args, lr: str, noise: str, out: Path) -> list:
     """The fine-tuning command of one run; the options at qat's defaults are left out, so the
     command the run records (config.json) is the one a reader would type."""
@@ -122,7 +114,7 @@ def qat(args, lr: str, noise: str, out: Path) -> list:
         cmd += ["--lr", lr]
     if float(noise) != 0.0:
         cmd += ["--feedback-noise", noise]
-    if args.exporter != QAT_EXPORTER:
+    if args.exporter != EXPORTER:
         cmd += ["--exporter", args.exporter]
     return cmd + ["--out", str(out)]
 
@@ -148,9 +140,9 @@ def table(runs: list, kept: str | None) -> str:
     lines = ["| run | training: f64 / int16 / int8 reach % | int16 p99 (max) cm | int8 p99 (max) cm | ratio | "
              "held-out: f64 / int16 / int8 reach % | int16 p99 (max) cm | int8 p99 (max) cm | held-out bars |",
              "|---|---|---|---|---|---|---|---|---|"]
-    for r in runs:
-        t, h = r, r.get("held_out")
-        name = f"**{r['name']} (kept)**" if r["name"] == kept else r["name"]
+    for t in runs:
+        h = t.get("held_out")
+        name = f"**{t['name']} (kept)**" if t["name"] == kept else t["name"]
         held = "| | | |"
         if h:
             held = (f"| {100 * h['f64_reach']:.1f} / {100 * h['int16_reach']:.1f} / {100 * h['int8_reach']:.1f} "
@@ -168,10 +160,11 @@ def main(argv=None):
             raise SystemExit(f"{tool}: no binary there (cargo build --release -p host-sim -p exporter)")
     name = args.name or (Path(args.out).name if args.out else Path(args.source).name.removesuffix("_float"))
     runs_dir = Path(args.runs)
-    runs = []
+    runs, options = [], {}
     for lr in args.lrs.split(","):
         for noise in args.noises.split(","):
             d = runs_dir / f"{name}_lr{lr}_fb{noise}"
+            options[d.name] = (lr, noise)
             if not (d / "model.safetensors").exists():
                 print(f"fine-tuning {d.name}", flush=True)
                 run(qat(args, lr, noise, d))
@@ -191,16 +184,13 @@ def main(argv=None):
         raise SystemExit(f"{name}: every run is out (reach more than 2 points from f64 on the training clips)")
     print(f"kept: {kept}")
     if args.out:
-        k = next(r for r in runs if r["name"] == kept)
-        lr = next(x for x in args.lrs.split(",") if float(x) == k["lr"])
-        noise = next(x for x in args.noises.split(",") if float(x) == k["noise"])
-        run(qat(args, lr, noise, Path(args.out)))
-        made, want = Path(args.out) / "model.safetensors", Path(k["dir"]) / "model.safetensors"
+        run(qat(args, *options[kept], Path(args.out)))
+        made, want = Path(args.out) / "model.safetensors", runs_dir / kept / "model.safetensors"
         if made.read_bytes() != want.read_bytes():
             raise SystemExit(f"{made}: differs from the candidate {want} (the runs should be deterministic)")
         # the evidence of the choice stays with the model
         (Path(args.out) / "choice.json").write_text(json.dumps(record, indent=1) + "\n")
-        print(f"wrote {args.out} (byte-identical to {k['dir']}) and its choice.json")
+        print(f"wrote {args.out} (byte-identical to {want.parent}) and its choice.json")
 
 
 if __name__ == "__main__":

@@ -34,7 +34,6 @@ import json
 import os
 import platform
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -48,6 +47,7 @@ import torch  # noqa: E402
 from safetensors.torch import load_file  # noqa: E402
 
 from .core import Frame, grid_round, load_rig, model_slices, open_log, train_omg  # noqa: E402
+from .proc import EXPORTER, QAT_LR, run  # noqa: E402
 from .references import load_model, read_references, save_weights, write_references  # noqa: E402
 
 QMAX = {8: 127.0, 16: 32767.0}
@@ -62,7 +62,7 @@ def parse(argv=None):
     a.add_argument("--data", default="data/omg")
     a.add_argument("--out", required=True)
     a.add_argument("--epochs", type=int, default=30)
-    a.add_argument("--lr", type=float, default=2e-4, help="AdamW learning rate (the source's last was about 2e-4)")
+    a.add_argument("--lr", type=float, default=QAT_LR, help="AdamW learning rate (the source's last was about 2e-4)")
     a.add_argument("--lr-step", type=int, default=700)
     a.add_argument("--batch", type=int, default=32)
     a.add_argument("--weight-bits", type=int, default=8, choices=sorted(QMAX))
@@ -75,17 +75,11 @@ def parse(argv=None):
     a.add_argument("--motion-from", default=None,
                    help="a Frozen rig model: the model directory whose int8 blob is the motion blob its "
                    "rig blob is built against (the grid of the shared nodes is that blob's)")
-    a.add_argument("--exporter", default="target/release/exporter", help="the exporter binary")
+    a.add_argument("--exporter", default=EXPORTER, help="the exporter binary")
     a.add_argument("--max-snaps", type=int, default=6)
     a.add_argument("--seed", type=int, default=0)
     a.add_argument("--threads", type=int, default=1, help="torch.set_num_threads (default 1)")
     return a.parse_args(argv)
-
-
-def run(cmd: list) -> None:
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)}: {r.stderr.strip()}")
 
 
 def exporter(args, model_dir: Path, *extra: str) -> None:
