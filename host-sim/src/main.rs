@@ -127,6 +127,16 @@ enum Command {
         /// looking at the clips they are reported on).
         #[arg(long, value_name = "N")]
         train_clips: Option<usize>,
+        /// Also roll the f64 model out with every input feature moved each
+        /// frame by uniform noise in [-A, A] of its standard deviation
+        /// (repeatable; e.g. half a blob's input step, or float32's 6e-8),
+        /// each against the plain f64 rollout: how sensitive the model's
+        /// own closed loop is, apart from any arithmetic
+        #[arg(long, value_name = "A")]
+        input_noise: Vec<f64>,
+        /// Seeds of each --input-noise amount
+        #[arg(long, value_name = "N", default_value_t = 4)]
+        noise_seeds: u64,
     },
     /// OMG models (docs/omg.md): the f64 graph forward vs the committed
     /// PyTorch references, and int16 / int8 blobs vs the f64 forward, one
@@ -392,6 +402,8 @@ fn run(cli: Cli) -> Result<()> {
             int8,
             motion_from,
             train_clips,
+            input_noise,
+            noise_seeds,
         } => {
             let opts = exporter::quantise::QuantOptions {
                 headroom,
@@ -399,7 +411,7 @@ fn run(cli: Cli) -> Result<()> {
             };
             let mut all = Vec::new();
             for d in &dirs {
-                let r = host_sim::omg_reach::measure(
+                let mut r = host_sim::omg_reach::measure(
                     d,
                     &data,
                     &opts,
@@ -407,6 +419,13 @@ fn run(cli: Cli) -> Result<()> {
                     motion_from.as_deref(),
                     train_clips,
                 )?;
+                r.rows.extend(host_sim::omg_reach::input_noise_rows(
+                    d,
+                    &data,
+                    train_clips,
+                    &input_noise,
+                    noise_seeds,
+                )?);
                 print!("{}", r.table());
                 all.push(r);
             }

@@ -456,6 +456,89 @@ pub fn measure(
     })
 }
 
+/// The f64 forward with every input feature moved each frame by uniform
+/// noise in `[-a, a]` of that feature's standard deviation: how far the
+/// model's own grounded rollout moves under perturbations of a blob's
+/// input rounding (`a = 2^-(input_frac + 1)`, half an input step) or of
+/// float32 (`a` about 6e-8), whatever the arithmetic that makes them.
+struct NoisyInput<'n> {
+    net: FloatOmg<'n>,
+    a: f64,
+    rng: rand_chacha::ChaCha8Rng,
+}
+
+impl phasegate_controller::Network<f64> for NoisyInput<'_> {
+    fn input_dim(&self) -> usize {
+        self.net.input_dim()
+    }
+    fn output_dim(&self) -> usize {
+        self.net.output_dim()
+    }
+    fn predict(
+        &mut self,
+        phase: f64,
+        x: &[f64],
+        y: &mut [f64],
+    ) -> phasegate_controller::Result<()> {
+        use rand::Rng;
+        let std = &self.net.0.net.xstd;
+        let moved: Vec<f64> = x
+            .iter()
+            .zip(std)
+            .map(|(v, s)| v + self.rng.gen_range(-self.a..=self.a) * s)
+            .collect();
+        self.net.predict(phase, &moved, y)
+    }
+    fn mean_output(&self, y: &mut [f64]) -> phasegate_controller::Result<()> {
+        self.net.mean_output(y)
+    }
+}
+
+/// Rows of `dir`'s f64 model rolled out with input noise (`NoisyInput`)
+/// of each amount in `amounts` and seeds `0..seeds`, on the clips
+/// [`measure`] judges (`train_clips` as there), each against the
+/// unperturbed f64 rollout (`vs_f64`); named `f64~A/sS`.
+pub fn input_noise_rows(
+    dir: &Path,
+    data: &Path,
+    train_clips: Option<usize>,
+    amounts: &[f64],
+    seeds: u64,
+) -> Result<Vec<ReachRow>> {
+    use rand::SeedableRng;
+    if let Some(a) = amounts.iter().find(|a| !(a.is_finite() && **a >= 0.0)) {
+        bail!("--input-noise {a}: an amount is a finite share of a feature's std, at least 0");
+    }
+    if amounts.is_empty() || seeds == 0 {
+        return Ok(Vec::new());
+    }
+    let d = load_dir(dir)?;
+    let rig = rig_of(dir)?;
+    let width = d.omg.config.model_width;
+    let held = match train_clips {
+        None => HeldOut::read(data, &rig, width)?,
+        Some(0) => bail!("--train-clips 0: judge on at least one training clip"),
+        Some(n) => HeldOut::read_splits(data, &rig, width, &["train"], n)?,
+    };
+    let float = rollouts(&d, &held, &mut FloatOmg(&d.omg), "f64")?.concat();
+    let mut rows = Vec::new();
+    for &a in amounts {
+        for seed in 0..seeds {
+            let name = format!("f64~{a:e}/s{seed}");
+            let mut net = NoisyInput {
+                net: FloatOmg(&d.omg),
+                a,
+                rng: rand_chacha::ChaCha8Rng::seed_from_u64(seed),
+            };
+            let ys = rollouts(&d, &held, &mut net, &name)?;
+            let mut r = row(&d, &name, 0, &held, &ys);
+            r.vs_f64 = Some(diff(&d.omg, &ys.concat(), &float));
+            rows.push(r);
+        }
+    }
+    Ok(rows)
+}
+
 impl OmgReach {
     /// The figures as a table, with the bars for the blobs.
     pub fn table(&self) -> String {
@@ -483,7 +566,7 @@ impl OmgReach {
             );
         }
         let float = self.rows.iter().find(|r| r.run == "f64");
-        for r in self.rows.iter().filter(|r| r.vs_f64.is_some()) {
+        for r in self.rows.iter().filter(|r| r.blob_bytes > 0) {
             let (Some(f), Some(v)) = (float, &r.vs_f64) else {
                 continue;
             };
@@ -497,6 +580,39 @@ impl OmgReach {
                 if pp.abs() <= 2.0 { "met" } else { "NOT met" },
                 p99,
                 if p99 <= bar_cm { "met" } else { "NOT met" }
+            );
+        }
+        s += &self.noise_summary();
+        s
+    }
+
+    /// One line per input-noise amount of [`input_noise_rows`]: the p99
+    /// against f64 over its seeds, and how many stay within each bar.
+    fn noise_summary(&self) -> String {
+        let mut groups: Vec<(&str, Vec<f64>)> = Vec::new();
+        for r in &self.rows {
+            let (Some(rest), Some(v)) = (r.run.strip_prefix("f64~"), &r.vs_f64) else {
+                continue;
+            };
+            let amount = rest.split('/').next().unwrap_or(rest);
+            let p99 = 100.0 * v.p99_joint_m;
+            match groups.iter_mut().find(|(a, _)| *a == amount) {
+                Some((_, ps)) => ps.push(p99),
+                None => groups.push((amount, vec![p99])),
+            }
+        }
+        let mut s = String::new();
+        for (amount, mut ps) in groups {
+            ps.sort_by(f64::total_cmp);
+            let within = |cm: f64| ps.iter().filter(|&&p| p <= cm).count();
+            s += &format!(
+                "f64 with input noise {amount} std: p99 joint vs f64 {:.3} .. {:.3} cm (median {:.3}) over {} seeds; <= 1 cm on {}, <= 2 cm on {}\n",
+                ps[0],
+                ps[ps.len() - 1],
+                ps[ps.len() / 2],
+                ps.len(),
+                within(1.0),
+                within(2.0)
             );
         }
         s

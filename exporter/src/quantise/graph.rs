@@ -6,7 +6,8 @@
 //! * every layer row at a power of two, as fine as its calibrated maximum
 //!   (times the headroom) allows, at most Q15 (ELU reads it; a row feeding
 //!   several nodes needs one format, so the chain's joint choice with its
-//!   one consumer does not apply);
+//!   one consumer does not apply); the graph's output rows no finer than
+//!   the input columns, whose range real motion needs;
 //! * every logit row of a softmax gate at the coarsest format among them,
 //!   so the gate compares integers of one scale (the loader checks it);
 //! * each node's input columns at its producers' row formats, the output
@@ -89,6 +90,29 @@ fn graph_moments(
     })
 }
 
+/// Caps the rows of the graph's output at the input stage's format. An
+/// autoregressive model's outputs are its next inputs, which the input
+/// stage takes to `input_range_sigma` standard deviations; real motion
+/// drives some outputs past what the normal calibration inputs reach
+/// (small_rbfcat_r1's hand and arm velocities to -4.6 std, where rows
+/// calibrated at about 1 std saturated at -4 for dozens of frames,
+/// docs/omg.md), and a row finer than the input stage buys nothing the
+/// next frame keeps.
+fn cover_the_input_range(fracs: &mut [Vec<u8>], g: &Graph, input_frac: u8) {
+    let Source::Node(j) = g.output.source else {
+        return;
+    };
+    let (a, n) = (usize::from(g.output.start), usize::from(g.output.len));
+    if let Some(rows) = fracs
+        .get_mut(usize::from(j))
+        .and_then(|f| f.get_mut(a..a + n))
+    {
+        for f in rows {
+            *f = (*f).min(input_frac);
+        }
+    }
+}
+
 /// Quantises a graph net: see the module documentation.
 pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quantised, QuantError> {
     let phase_experts = g.phase_experts(&net.layers);
@@ -112,6 +136,7 @@ pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quant
                 .collect()
         })
         .collect();
+    cover_the_input_range(&mut fracs, g, input_frac);
     for (&i, given) in &opts.row_formats {
         match fracs.get_mut(i) {
             Some(f) if f.len() == given.len() => f.clone_from(given),
@@ -256,4 +281,34 @@ pub fn quantise_graph(net: &Net, g: &Graph, opts: &QuantOptions) -> Result<Quant
         dequantised,
         in_scales: node_in_scales,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn output_rows_are_no_finer_than_the_input_stage() {
+        let g = Graph {
+            nodes: Vec::new(),
+            output: Slice {
+                source: Source::Node(1),
+                start: 1,
+                len: 2,
+            },
+        };
+        let mut fracs = vec![vec![14, 14, 14], vec![13, 13, 12, 10]];
+        cover_the_input_range(&mut fracs, &g, 11);
+        // Only the output slice's rows move, and none gets finer.
+        assert_eq!(fracs, vec![vec![14, 14, 14], vec![13, 11, 11, 10]]);
+        let from_input = Graph {
+            output: Slice {
+                source: Source::Input,
+                ..g.output
+            },
+            ..g
+        };
+        cover_the_input_range(&mut fracs, &from_input, 0);
+        assert_eq!(fracs, vec![vec![14, 14, 14], vec![13, 11, 11, 10]]);
+    }
 }
