@@ -17,5 +17,6 @@ pub mod omg_rollout;
 pub mod quant_knobs;
 pub mod render;
 pub mod rollout;
+pub mod saturation;
 pub mod style;
 pub mod target;

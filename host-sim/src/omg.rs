@@ -265,6 +265,11 @@ impl<'b> FixedOmg<'b> {
         })
     }
 
+    /// The loaded model.
+    pub fn model(&self) -> &Model<'b> {
+        self.rt.model()
+    }
+
     /// The network's output for raw input `x`.
     pub fn run(&mut self, x: &[f64]) -> Result<Vec<f64>> {
         for (d, &s) in self.xf.iter_mut().zip(x) {

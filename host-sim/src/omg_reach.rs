@@ -20,6 +20,7 @@ use serde::Serialize;
 
 use crate::omg::{diff, load_dir, rollout, Diff, FixedOmg, FloatOmg, Mode, OmgDir};
 use crate::quant_knobs::Int8Knobs;
+use crate::saturation::{saturated, Saturation};
 use exporter::net::omg::OmgConfig;
 use exporter::quantise::{QuantOptions, Recorded};
 
@@ -215,6 +216,9 @@ pub struct ReachRow {
     pub rms: f64,
     /// Against the f64 rollout (blobs only).
     pub vs_f64: Option<Diff>,
+    /// The blob's rows that the f64 rollout's frames drive beyond their
+    /// format's range (blobs only; empty: none).
+    pub saturated: Option<Saturation>,
 }
 
 /// `host-sim omg-reach`'s figures for one model.
@@ -278,6 +282,7 @@ fn row(d: &OmgDir, run: &str, blob_bytes: usize, held: &HeldOut, ys: &[Vec<Vec<f
         joint_vs_data_cm: 100.0 * mean(joint_err),
         rms: mean(ys.iter().map(|y| rms_roughness(&d.omg.config, y))),
         vs_f64: None,
+        saturated: None,
     }
 }
 
@@ -394,6 +399,10 @@ pub fn measure(
         let ys = rollouts(&d, &held, fx, name)?;
         let mut r = row(&d, name, bytes, &held, &ys);
         r.vs_f64 = Some(diff(&d.omg, &flat(&ys), &flat(&float)));
+        r.saturated = Some(exporter::progress::during(
+            &format!("checking {name}'s ranges on the f64 frames"),
+            || saturated(fx.model(), &d.omg.net, &flat(&float)),
+        )?);
         rows.push(r);
         Ok(())
     };
@@ -581,6 +590,15 @@ impl OmgReach {
                 p99,
                 if p99 <= bar_cm { "met" } else { "NOT met" }
             );
+        }
+        for r in &self.rows {
+            if let Some(sat) = &r.saturated {
+                s += &format!(
+                    "{}: rows saturated on the f64 rollout's frames: {}\n",
+                    r.run,
+                    sat.summary()
+                );
+            }
         }
         s += &self.noise_summary();
         s

@@ -242,11 +242,6 @@ fn reach_metrics_match_the_numpy_evaluation() {
     }
 }
 
-/// The blob of the rule's choice that misses issue 11's bar on the held-out
-/// clips, and the limit it is held to: its measured p99 (1.240 cm), rounded
-/// up to the next half millimetre.
-const KNOWN_MISS: ((&str, &str), f64) = (("small_rbfcat_r1", "int16"), 0.0125);
-
 /// Issue 11's bars on the held-out clips (docs/omg.md, "Models trained for
 /// their int8 blobs"): each committed model's int16 and int8 deployment
 /// (whole blobs; for the Frozen R4 model, rig blobs against tiny_fe_r1's
@@ -254,11 +249,11 @@ const KNOWN_MISS: ((&str, &str), f64) = (("small_rbfcat_r1", "int16"), 0.0125);
 /// percentage points, and its p99 joint difference to the f64 rollout
 /// within 1 cm (int16) and 2 cm (int8) over 48 clips of 300 frames. The
 /// models are fine-tuned for their int8 blobs (`tools.omg.train.qat`), each
-/// run chosen by a rule that reads no held-out clip; the one blob of the
-/// rule's choice that misses its bar, small RBF-CAT at int16 (1.240 cm),
-/// is held to its measured figure instead, so that it cannot get worse
-/// unseen, and the test prints the verdict. Needs the data set, as the
-/// test above.
+/// run chosen by a rule that reads no held-out clip. No row of the graph's
+/// output saturates on the f64 rollout's frames (the exporter keeps them as
+/// wide as the input stage: before, small RBF-CAT's int16 blob clipped arm
+/// velocities and missed its bar at 1.240 cm). Prints every verdict and
+/// the rows that do saturate. Needs the data set, as the test above.
 #[test]
 fn reach_bars_on_every_committed_model() {
     let Some(data) = omg_data("reach bars") else {
@@ -286,6 +281,14 @@ fn reach_bars_on_every_committed_model() {
         )
         .unwrap();
         eprint!("{}", r.table());
+        let net = host_sim::omg::load_dir(&model_dir(name)).unwrap().omg.net;
+        let exporter::net::Wiring::Graph(g) = &net.wiring else {
+            panic!("{name}: an OMG model is a graph");
+        };
+        let phasegate::blob::Source::Node(output_node) = g.output.source else {
+            panic!("{name}: the output is a node's");
+        };
+        let output_node = usize::from(output_node);
         let f = r.rows.iter().find(|x| x.run == "f64").unwrap();
         let blobs: Vec<_> = r.rows.iter().filter(|x| x.vs_f64.is_some()).collect();
         assert_eq!(blobs.len(), 2, "{name}");
@@ -296,11 +299,6 @@ fn reach_bars_on_every_committed_model() {
                 0.02
             };
             let p99 = b.vs_f64.as_ref().unwrap().p99_joint_m;
-            let limit_m = if (name, b.run.as_str()) == KNOWN_MISS.0 {
-                KNOWN_MISS.1
-            } else {
-                bar_m
-            };
             eprintln!(
                 "{name} {}: p99 {:.3} cm, issue 11's bar {} cm: {}",
                 b.run,
@@ -308,7 +306,14 @@ fn reach_bars_on_every_committed_model() {
                 bar_m * 100.0,
                 if p99 <= bar_m { "met" } else { "NOT met" }
             );
-            assert!(p99 <= limit_m, "{name} {}: p99 {p99} m", b.run);
+            assert!(p99 <= bar_m, "{name} {}: p99 {p99} m", b.run);
+            let sat = b.saturated.as_ref().unwrap();
+            assert!(
+                sat.nodes.iter().all(|n| n.node != output_node),
+                "{name} {}: the output node saturates: {}",
+                b.run,
+                sat.summary()
+            );
             assert!(
                 (b.reach - f.reach).abs() <= 0.02 + 1e-12,
                 "{name} {}: reach {} against {}",
@@ -355,7 +360,13 @@ fn reach_on_training_clips_and_its_refusals() {
 /// The device's configuration of the reaching controller: the loop in f32
 /// (`Reach<f32, _>`) over the fixed-point runtime, sized statically for
 /// the model, follows the host's loop over the same blob (f64 glue) on
-/// the reference clips; the glue's f32 rounding is all that differs.
+/// the reference clips; the glue's f32 rounding is all that differs. The
+/// two loops are bit-identical until the glue's rounding moves one input
+/// across a rounding boundary; the loop's answer to that one step (the
+/// output's position rows are at Q11 since they cover the input stage,
+/// 0.11 mm a step for tiny_fe_r1) grew to 1.75 mm and decayed (measured
+/// 2026-12-01; 0.25 mm with the finer output rows before), so the bound
+/// is 2.5 mm.
 #[test]
 fn the_f32_reaching_loop_over_the_runtime_follows_the_host_loop() {
     use phasegate_controller::{CostMode, Reach};
@@ -389,7 +400,7 @@ fn the_f32_reaching_loop_over_the_runtime_follows_the_host_loop() {
     eprintln!(
         "f32 loop vs f64 glue, same int16 blob, 100 frames: max position difference {worst:.2e} m"
     );
-    assert!(worst < 1e-3, "{worst}");
+    assert!(worst < 2.5e-3, "{worst}");
 }
 
 /// `omg-reach --calibration-clips N`: the int8 blob's recorded calibration
