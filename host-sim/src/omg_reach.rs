@@ -366,6 +366,24 @@ pub(crate) fn rig_of(dir: &Path) -> Result<String> {
         .with_context(|| format!("{}: no \"rig\"", path.display()))
 }
 
+/// `dir`'s model, its rig and the clips it is judged on: the rig's
+/// held-out clips under `data`, or its first `train_clips` training clips.
+fn judged_clips(
+    dir: &Path,
+    data: &Path,
+    train_clips: Option<usize>,
+) -> Result<(OmgDir, String, HeldOut)> {
+    let d = load_dir(dir)?;
+    let rig = rig_of(dir)?;
+    let width = d.omg.config.model_width;
+    let held = match train_clips {
+        None => HeldOut::read(data, &rig, width)?,
+        Some(0) => bail!("--train-clips 0: judge on at least one training clip"),
+        Some(n) => HeldOut::read_splits(data, &rig, width, &["train"], n)?,
+    };
+    Ok((d, rig, held))
+}
+
 /// Measures `dir`'s model on its rig's held-out clips under `data` (or on
 /// its first `train_clips` training clips, to choose among training runs
 /// without looking at the held-out ones): its own
@@ -381,14 +399,7 @@ pub fn measure(
     motion_from: Option<&Path>,
     train_clips: Option<usize>,
 ) -> Result<OmgReach> {
-    let d = load_dir(dir)?;
-    let rig = rig_of(dir)?;
-    let width = d.omg.config.model_width;
-    let held = match train_clips {
-        None => HeldOut::read(data, &rig, width)?,
-        Some(0) => bail!("--train-clips 0: judge on at least one training clip"),
-        Some(n) => HeldOut::read_splits(data, &rig, width, &["train"], n)?,
-    };
+    let (d, rig, held) = judged_clips(dir, data, train_clips)?;
     let float = rollouts(&d, &held, &mut FloatOmg(&d.omg), "f64")?;
     let mut rows = vec![
         row(&d, "data", 0, &held, &held.clips),
@@ -521,14 +532,7 @@ pub fn input_noise_rows(
     if amounts.is_empty() || seeds == 0 {
         return Ok(Vec::new());
     }
-    let d = load_dir(dir)?;
-    let rig = rig_of(dir)?;
-    let width = d.omg.config.model_width;
-    let held = match train_clips {
-        None => HeldOut::read(data, &rig, width)?,
-        Some(0) => bail!("--train-clips 0: judge on at least one training clip"),
-        Some(n) => HeldOut::read_splits(data, &rig, width, &["train"], n)?,
-    };
+    let (d, _, held) = judged_clips(dir, data, train_clips)?;
     let float = rollouts(&d, &held, &mut FloatOmg(&d.omg), "f64")?.concat();
     let mut rows = Vec::new();
     for &a in amounts {

@@ -129,3 +129,55 @@ pub fn saturated(model: &Model<'_>, net: &Net, inputs: &[Vec<f64>]) -> Result<Sa
         nodes: out,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::omg::{export, exporter_options, load_dir};
+    use phasegate::blob::{Source, WeightFormat};
+
+    /// The exporter keeps tiny_fe_r1's output rows wide enough for its
+    /// reference frames; forced to Q15 (+-1 std) they saturate, and the
+    /// check names the node, its rows and how far beyond they went.
+    #[test]
+    fn finds_the_output_rows_a_narrow_format_clips() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg/tiny_fe_r1");
+        let d = load_dir(&dir).unwrap();
+        let Wiring::Graph(g) = &d.omg.net.wiring else {
+            panic!("an OMG model is a graph")
+        };
+        let Source::Node(out) = g.output.source else {
+            panic!("the output is a node's")
+        };
+        let out = usize::from(out);
+        let [clips, frames, _] = d.refs.inputs.dims;
+        let inputs: Vec<Vec<f64>> = (0..clips)
+            .flat_map(|c| (0..frames).map(move |t| (c, t)))
+            .map(|(c, t)| d.refs.inputs.row(c, t).to_vec())
+            .collect();
+        let check = |opts| {
+            let blob = export(&d, WeightFormat::I16, &opts).unwrap();
+            saturated(&Model::from_bytes(&blob).unwrap(), &d.omg.net, &inputs).unwrap()
+        };
+        let s = check(exporter_options(WeightFormat::I16));
+        assert_eq!(s.inputs, inputs.len());
+        assert!(s.nodes.iter().all(|n| n.node != out), "{}", s.summary());
+
+        let mut narrow = exporter_options(WeightFormat::I16);
+        narrow
+            .row_formats
+            .insert(out, vec![15; usize::from(g.output.len)]);
+        let s = check(narrow);
+        let n = s
+            .nodes
+            .iter()
+            .find(|n| n.node == out)
+            .expect("the output saturates");
+        assert!(!n.rows.is_empty() && n.rows.windows(2).all(|w| w[0] < w[1]));
+        assert!(n.inputs > 0 && n.inputs <= inputs.len());
+        assert!(n.worst > 1.0, "{}", n.worst);
+        assert!(s
+            .summary()
+            .contains(&format!("node {out}: {} rows", n.rows.len())));
+    }
+}

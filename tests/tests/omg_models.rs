@@ -357,6 +357,49 @@ fn reach_on_training_clips_and_its_refusals() {
     assert!(e.to_string().contains("leave out the int8 knobs"), "{e}");
 }
 
+/// `omg-reach --input-noise A`: the f64 model rolled out with uniform input
+/// noise of A standard deviations, against its plain f64 rollout; A = 0
+/// is that rollout exactly, a nonzero A moves it, and a negative or
+/// non-finite A is refused. Needs the data set, as the test above.
+#[test]
+fn input_noise_rows_perturb_the_f64_rollout_and_nothing_else() {
+    let Some(data) = omg_data("input-noise rollouts") else {
+        return;
+    };
+    let dir = model_dir("tiny_fe_r1");
+    let rows =
+        host_sim::omg_reach::input_noise_rows(&dir, &data, Some(2), &[0.0, 1e-3], 2).unwrap();
+    let names: Vec<&str> = rows.iter().map(|r| r.run.as_str()).collect();
+    assert_eq!(
+        names,
+        ["f64~0e0/s0", "f64~0e0/s1", "f64~1e-3/s0", "f64~1e-3/s1"]
+    );
+    for r in &rows {
+        let v = r.vs_f64.as_ref().unwrap();
+        assert_eq!(v.frames, 2 * 300, "{}", r.run);
+        if r.run.starts_with("f64~0e0") {
+            assert_eq!((v.max_abs, v.p99_joint_m), (0.0, 0.0), "{}", r.run);
+        } else {
+            assert!(v.max_abs > 0.0, "{}", r.run);
+        }
+        assert!(r.saturated.is_none() && r.blob_bytes == 0);
+    }
+    assert_ne!(
+        rows[2].vs_f64.as_ref().unwrap().max_abs,
+        rows[3].vs_f64.as_ref().unwrap().max_abs,
+        "seeds draw different noise"
+    );
+    for bad in [-1e-3, f64::NAN] {
+        let e = host_sim::omg_reach::input_noise_rows(&dir, &data, Some(1), &[bad], 1).unwrap_err();
+        assert!(e.to_string().contains("--input-noise"), "{e}");
+    }
+    assert!(
+        host_sim::omg_reach::input_noise_rows(&dir, &data, Some(1), &[1e-3], 0)
+            .unwrap()
+            .is_empty()
+    );
+}
+
 /// The device's configuration of the reaching controller: the loop in f32
 /// (`Reach<f32, _>`) over the fixed-point runtime, sized statically for
 /// the model, follows the host's loop over the same blob (f64 glue) on
