@@ -131,10 +131,10 @@ enum Command {
         /// frame by uniform noise in [-A, A] of its standard deviation
         /// (repeatable; e.g. half a blob's input step, or float32's 6e-8),
         /// each against the plain f64 rollout: how sensitive the model's
-        /// own closed loop is, apart from any arithmetic
-        #[arg(long, value_name = "A")]
+        /// own closed loop is, apart from any arithmetic.
+        #[arg(long, value_name = "A", allow_negative_numbers = true)]
         input_noise: Vec<f64>,
-        /// Seeds of each --input-noise amount
+        /// Seeds of each --input-noise amount.
         #[arg(long, value_name = "N", default_value_t = 4)]
         noise_seeds: u64,
     },

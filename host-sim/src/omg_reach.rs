@@ -626,13 +626,19 @@ impl OmgReach {
         let mut s = String::new();
         for (amount, mut ps) in groups {
             ps.sort_by(f64::total_cmp);
+            let n = ps.len();
+            let median = if n % 2 == 1 {
+                ps[n / 2]
+            } else {
+                (ps[n / 2 - 1] + ps[n / 2]) / 2.0
+            };
             let within = |cm: f64| ps.iter().filter(|&&p| p <= cm).count();
             s += &format!(
                 "f64 with input noise {amount} std: p99 joint vs f64 {:.3} .. {:.3} cm (median {:.3}) over {} seeds; <= 1 cm on {}, <= 2 cm on {}\n",
                 ps[0],
-                ps[ps.len() - 1],
-                ps[ps.len() / 2],
-                ps.len(),
+                ps[n - 1],
+                median,
+                n,
                 within(1.0),
                 within(2.0)
             );

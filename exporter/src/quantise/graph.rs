@@ -94,8 +94,8 @@ fn graph_moments(
 /// autoregressive model's outputs are its next inputs, which the input
 /// stage takes to `input_range_sigma` standard deviations; real motion
 /// drives some outputs past what the normal calibration inputs reach
-/// (small_rbfcat_r1's hand and arm velocities to -4.6 std, where rows
-/// calibrated at about 1 std saturated at -4 for dozens of frames,
+/// (small_rbfcat_r1's joint velocities to -4.6 std, where rows whose
+/// calibration reached about 1 std saturated at -4 for dozens of frames,
 /// docs/omg.md), and a row finer than the input stage buys nothing the
 /// next frame keeps.
 fn cover_the_input_range(fracs: &mut [Vec<u8>], g: &Graph, input_frac: u8) {
