@@ -3,8 +3,8 @@
 //! diagonal), multiply-accumulates, formats and section offsets.
 
 use phasegate::blob::{
-    AccWidth, Activation, GateSource, Gating, LayerOp, Node, NodeOp, Slice, Source, Span,
-    WeightFormat, FORMAT_VERSION,
+    AccWidth, Activation, GateSource, Gating, LayerOp, Node, NodeOp, Requant, Slice, Source, Span,
+    WeightFormat, FORMAT_VERSION, REQUANT_RECORD_LEN,
 };
 use phasegate::ops::{GatedOp, Layer};
 use phasegate::{node_gating, Model, Style};
@@ -18,6 +18,22 @@ fn gating(g: &Gating) -> String {
         Gating::CatmullRom { points } => format!("cubic Catmull-Rom, {points} control points"),
         Gating::Softmax { experts } => format!("softmax gate, {experts} experts"),
     }
+}
+
+/// The row formats (Q`frac` of each output row, from its requantisation
+/// record) of layer node `i` of `model`: what a blob built against it must
+/// share (rig blobs, style adapters) and what bounds each row's range.
+pub fn row_formats(model: &Model<'_>, i: usize) -> anyhow::Result<Vec<u8>> {
+    let k = model
+        .kernel(i)
+        .ok_or_else(|| anyhow::anyhow!("node {i} is not a layer"))?;
+    k.requant()
+        .as_chunks::<REQUANT_RECORD_LEN>()
+        .0
+        .iter()
+        .map(|r| Requant::from_bytes(r).map(|q| q.frac))
+        .collect::<Option<Vec<u8>>>()
+        .ok_or_else(|| anyhow::anyhow!("node {i} has a bad requantisation record"))
 }
 
 /// The table `exporter inspect` prints for a valid blob.

@@ -14,13 +14,13 @@
 
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use phasegate::blob::{
-    crc32, Header, LayerOp, ModelKind, NodeOp, Nodes, Requant, Section, Source, MAX_STYLE_NAME,
-    REQUANT_RECORD_LEN,
+    crc32, Header, LayerOp, ModelKind, NodeOp, Nodes, Section, Source, MAX_STYLE_NAME,
 };
 use phasegate::Model;
 use serde::Serialize;
 
 use crate::encode::{encode, frame};
+use crate::inspect::row_formats;
 use crate::net::{Net, Wiring};
 use crate::quantise::{quantise_net, QuantOptions};
 
@@ -63,20 +63,6 @@ pub fn rig_mask(net: &Net, names: &[&str]) -> Result<u32> {
     Ok(mask)
 }
 
-/// The row formats of layer node `i` of `model`.
-fn row_formats(model: &Model<'_>, i: usize) -> Result<Vec<u8>> {
-    let k = model
-        .kernel(i)
-        .ok_or_else(|| anyhow!("motion blob node {i} is not a layer"))?;
-    k.requant()
-        .as_chunks::<REQUANT_RECORD_LEN>()
-        .0
-        .iter()
-        .map(|r| Requant::from_bytes(r).map(|q| q.frac))
-        .collect::<Option<Vec<u8>>>()
-        .ok_or_else(|| anyhow!("motion blob node {i} has a bad requantisation record"))
-}
-
 /// `opts` with the row formats the rig of the nodes in `mask` must share
 /// with `motion` (a model blob): those of every motion node, and of the
 /// rig's nodes that motion nodes read.
@@ -91,7 +77,8 @@ pub fn rig_options(motion: &[u8], mask: u32, opts: &QuantOptions) -> Result<Quan
                 !own(k) && r.inputs.iter().any(|s| s.source == Source::Node(i as u8))
             });
         if n.layer().is_some() && (!own(i) || read_by_motion) {
-            opts.row_formats.insert(i, row_formats(&m, i)?);
+            opts.row_formats
+                .insert(i, row_formats(&m, i).context("motion blob")?);
         }
     }
     Ok(opts)

@@ -9,8 +9,8 @@
 //! calibrates on normal inputs; this measures the blob on real motion.
 
 use anyhow::{bail, Result};
+use exporter::inspect::row_formats;
 use exporter::net::{Net, Wiring};
-use phasegate::blob::{Requant, REQUANT_RECORD_LEN};
 use phasegate::Model;
 use serde::Serialize;
 
@@ -66,16 +66,15 @@ pub fn saturated(model: &Model<'_>, net: &Net, inputs: &[Vec<f64>]) -> Result<Sa
         bail!("saturation is measured on graph models");
     };
     // Per layer node: each row's range in real units.
-    let mut ranges: Vec<Option<Vec<f64>>> = Vec::with_capacity(g.nodes.len());
-    for i in 0..g.nodes.len() {
-        ranges.push(model.kernel(i).map(|k| {
-            k.requant()
-                .chunks_exact(REQUANT_RECORD_LEN)
-                .filter_map(|c| Requant::from_bytes(c.try_into().ok()?))
-                .map(|r| 32767.0 / f64::from(r.frac).exp2())
-                .collect()
-        }));
-    }
+    let ranges: Vec<Option<Vec<f64>>> = (0..g.nodes.len())
+        .map(|i| {
+            model
+                .kernel(i)
+                .map(|_| row_formats(model, i))
+                .transpose()
+                .map(|f| f.map(|f| f.iter().map(|&q| 32767.0 / f64::from(q).exp2()).collect()))
+        })
+        .collect::<Result<_>>()?;
     let mut out: Vec<NodeSaturation> = Vec::new();
     for x in inputs {
         let t = net.graph_trace(g, x, 0.0);

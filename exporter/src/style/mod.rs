@@ -24,7 +24,7 @@
 pub mod cli;
 
 use anyhow::{anyhow, bail, Result};
-use phasegate::blob::{Activation, Gating, Requant, REQUANT_RECORD_LEN};
+use phasegate::blob::{Activation, Gating};
 use phasegate::{Mix, Model, Phase, Runtime, Style};
 use serde::Serialize;
 
@@ -54,16 +54,7 @@ pub fn base_formats(model: &Model<'_>, layer: usize) -> Result<(Vec<f64>, Vec<u8
         if k.desc().activation != Activation::Elu {
             bail!("base layer {i} has no ELU: its output formats are not powers of two");
         }
-        k.requant()
-            .as_chunks::<REQUANT_RECORD_LEN>()
-            .0
-            .iter()
-            .map(|r| {
-                Requant::from_bytes(r)
-                    .map(|r| r.frac)
-                    .ok_or_else(|| anyhow!("bad record"))
-            })
-            .collect()
+        crate::inspect::row_formats(model, i)
     };
     let inputs = fracs(layer - 1)?
         .into_iter()
