@@ -411,18 +411,15 @@ fn run(cli: Cli) -> Result<()> {
             };
             let mut all = Vec::new();
             for d in &dirs {
-                let mut r = host_sim::omg_reach::measure(
-                    d,
-                    &data,
+                let judged = host_sim::omg_reach::Judged::new(d, &data, train_clips)?;
+                let mut r = host_sim::omg_reach::measure_judged(
+                    &judged,
                     &opts,
                     &int8,
                     motion_from.as_deref(),
-                    train_clips,
                 )?;
                 r.rows.extend(host_sim::omg_reach::input_noise_rows(
-                    d,
-                    &data,
-                    train_clips,
+                    &judged,
                     &input_noise,
                     noise_seeds,
                 )?);

@@ -12,7 +12,7 @@
 //! the RMS roughness (spec §3.5, eq 3.9 in the author's code's form), and,
 //! for the blobs, the joint position difference to the f64 rollout.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use phasegate::blob::WeightFormat;
@@ -219,6 +219,9 @@ pub struct ReachRow {
     /// The blob's rows that the f64 rollout's frames drive beyond their
     /// format's range (blobs only; empty: none).
     pub saturated: Option<Saturation>,
+    /// The input noise of an [`input_noise_rows`] row (share of each
+    /// feature's std).
+    pub input_noise: Option<f64>,
 }
 
 /// `host-sim omg-reach`'s figures for one model.
@@ -283,6 +286,7 @@ fn row(d: &OmgDir, run: &str, blob_bytes: usize, held: &HeldOut, ys: &[Vec<Vec<f
         rms: mean(ys.iter().map(|y| rms_roughness(&d.omg.config, y))),
         vs_f64: None,
         saturated: None,
+        input_noise: None,
     }
 }
 
@@ -366,22 +370,42 @@ pub(crate) fn rig_of(dir: &Path) -> Result<String> {
         .with_context(|| format!("{}: no \"rig\"", path.display()))
 }
 
-/// `dir`'s model, its rig and the clips it is judged on: the rig's
-/// held-out clips under `data`, or its first `train_clips` training clips.
-fn judged_clips(
-    dir: &Path,
-    data: &Path,
+/// A model, the clips it is judged on (its rig's held-out clips under
+/// `data`, or its first `train_clips` training clips) and its f64
+/// rollouts of them: what every row of [`measure_judged`] and
+/// [`input_noise_rows`] is measured against.
+pub struct Judged {
+    dir: PathBuf,
+    data: PathBuf,
     train_clips: Option<usize>,
-) -> Result<(OmgDir, String, HeldOut)> {
-    let d = load_dir(dir)?;
-    let rig = rig_of(dir)?;
-    let width = d.omg.config.model_width;
-    let held = match train_clips {
-        None => HeldOut::read(data, &rig, width)?,
-        Some(0) => bail!("--train-clips 0: judge on at least one training clip"),
-        Some(n) => HeldOut::read_splits(data, &rig, width, &["train"], n)?,
-    };
-    Ok((d, rig, held))
+    d: OmgDir,
+    rig: String,
+    held: HeldOut,
+    float: Vec<Vec<Vec<f64>>>,
+}
+
+impl Judged {
+    /// Loads `dir`'s model and clips and rolls them out in f64.
+    pub fn new(dir: &Path, data: &Path, train_clips: Option<usize>) -> Result<Judged> {
+        let d = load_dir(dir)?;
+        let rig = rig_of(dir)?;
+        let width = d.omg.config.model_width;
+        let held = match train_clips {
+            None => HeldOut::read(data, &rig, width)?,
+            Some(0) => bail!("--train-clips 0: judge on at least one training clip"),
+            Some(n) => HeldOut::read_splits(data, &rig, width, &["train"], n)?,
+        };
+        let float = rollouts(&d, &held, &mut FloatOmg(&d.omg), "f64")?;
+        Ok(Judged {
+            dir: dir.to_path_buf(),
+            data: data.to_path_buf(),
+            train_clips,
+            d,
+            rig,
+            held,
+            float,
+        })
+    }
 }
 
 /// Measures `dir`'s model on its rig's held-out clips under `data` (or on
@@ -399,20 +423,42 @@ pub fn measure(
     motion_from: Option<&Path>,
     train_clips: Option<usize>,
 ) -> Result<OmgReach> {
-    let (d, rig, held) = judged_clips(dir, data, train_clips)?;
-    let float = rollouts(&d, &held, &mut FloatOmg(&d.omg), "f64")?;
+    measure_judged(
+        &Judged::new(dir, data, train_clips)?,
+        opts,
+        int8,
+        motion_from,
+    )
+}
+
+/// [`measure`] of a model already loaded and rolled out in f64.
+pub fn measure_judged(
+    j: &Judged,
+    opts: &QuantOptions,
+    int8: &Int8Knobs,
+    motion_from: Option<&Path>,
+) -> Result<OmgReach> {
+    let Judged {
+        dir,
+        data,
+        train_clips,
+        d,
+        rig,
+        held,
+        float,
+    } = j;
     let mut rows = vec![
-        row(&d, "data", 0, &held, &held.clips),
-        row(&d, "f64", 0, &held, &float),
+        row(d, "data", 0, held, &held.clips),
+        row(d, "f64", 0, held, float),
     ];
     let flat = |v: &[Vec<Vec<f64>>]| v.concat();
     let mut run = |name: &str, fx: &mut FixedOmg<'_>, bytes: usize| -> Result<()> {
-        let ys = rollouts(&d, &held, fx, name)?;
-        let mut r = row(&d, name, bytes, &held, &ys);
-        r.vs_f64 = Some(diff(&d.omg, &flat(&ys), &flat(&float)));
+        let ys = rollouts(d, held, fx, name)?;
+        let mut r = row(d, name, bytes, held, &ys);
+        r.vs_f64 = Some(diff(&d.omg, &flat(&ys), &flat(float)));
         r.saturated = Some(exporter::progress::during(
             &format!("checking {name}'s ranges on the f64 frames"),
-            || saturated(fx.model(), &d.omg.net, &flat(&float)),
+            || saturated(fx.model(), &d.omg.net, &flat(float)),
         )?);
         rows.push(r);
         Ok(())
@@ -420,7 +466,7 @@ pub fn measure(
     match motion_from {
         None => {
             let int16 = exporter::progress::during("exporting the int16 blob", || {
-                crate::omg::export(&d, WeightFormat::I16, opts)
+                crate::omg::export(d, WeightFormat::I16, opts)
             })?;
             let int8_opts = QuantOptions {
                 weights: WeightFormat::I8,
@@ -428,7 +474,7 @@ pub fn measure(
             };
             let recorded = int8
                 .calibration_clips
-                .map(|n| train_rollouts(&d, data, &rig, n))
+                .map(|n| train_rollouts(d, data, rig, n))
                 .transpose()?;
             let (int8, _) = int8.export_with(&d.omg.net, None, int8_opts, recorded)?;
             for (name, blob) in [("int16", &int16), ("int8", &int8)] {
@@ -464,7 +510,7 @@ pub fn measure(
     }
     Ok(OmgReach {
         dir: dir.display().to_string(),
-        rig,
+        rig: rig.clone(),
         clips: held.clips.len(),
         split: if train_clips.is_some() {
             "training"
@@ -514,26 +560,16 @@ impl phasegate_controller::Network<f64> for NoisyInput<'_> {
     }
 }
 
-/// Rows of `dir`'s f64 model rolled out with input noise (`NoisyInput`)
-/// of each amount in `amounts` and seeds `0..seeds`, on the clips
-/// [`measure`] judges (`train_clips` as there), each against the
-/// unperturbed f64 rollout (`vs_f64`); named `f64~A/sS`.
-pub fn input_noise_rows(
-    dir: &Path,
-    data: &Path,
-    train_clips: Option<usize>,
-    amounts: &[f64],
-    seeds: u64,
-) -> Result<Vec<ReachRow>> {
+/// Rows of `j`'s f64 model rolled out with input noise (`NoisyInput`) of
+/// each amount in `amounts` and seeds `0..seeds`, on its clips, each
+/// against its unperturbed f64 rollout (`vs_f64`); named `f64~A/sS`.
+pub fn input_noise_rows(j: &Judged, amounts: &[f64], seeds: u64) -> Result<Vec<ReachRow>> {
     use rand::SeedableRng;
     if let Some(a) = amounts.iter().find(|a| !(a.is_finite() && **a >= 0.0)) {
         bail!("--input-noise {a}: an amount is a finite share of a feature's std, at least 0");
     }
-    if amounts.is_empty() || seeds == 0 {
-        return Ok(Vec::new());
-    }
-    let (d, _, held) = judged_clips(dir, data, train_clips)?;
-    let float = rollouts(&d, &held, &mut FloatOmg(&d.omg), "f64")?.concat();
+    let (d, held) = (&j.d, &j.held);
+    let float = j.float.concat();
     let mut rows = Vec::new();
     for &a in amounts {
         for seed in 0..seeds {
@@ -543,9 +579,10 @@ pub fn input_noise_rows(
                 a,
                 rng: rand_chacha::ChaCha8Rng::seed_from_u64(seed),
             };
-            let ys = rollouts(&d, &held, &mut net, &name)?;
-            let mut r = row(&d, &name, 0, &held, &ys);
+            let ys = rollouts(d, held, &mut net, &name)?;
+            let mut r = row(d, &name, 0, held, &ys);
             r.vs_f64 = Some(diff(&d.omg, &ys.concat(), &float));
+            r.input_noise = Some(a);
             rows.push(r);
         }
     }
@@ -611,12 +648,11 @@ impl OmgReach {
     /// One line per input-noise amount of [`input_noise_rows`]: the p99
     /// against f64 over its seeds, and how many stay within each bar.
     fn noise_summary(&self) -> String {
-        let mut groups: Vec<(&str, Vec<f64>)> = Vec::new();
+        let mut groups: Vec<(f64, Vec<f64>)> = Vec::new();
         for r in &self.rows {
-            let (Some(rest), Some(v)) = (r.run.strip_prefix("f64~"), &r.vs_f64) else {
+            let (Some(amount), Some(v)) = (r.input_noise, &r.vs_f64) else {
                 continue;
             };
-            let amount = rest.split('/').next().unwrap_or(rest);
             let p99 = 100.0 * v.p99_joint_m;
             match groups.iter_mut().find(|(a, _)| *a == amount) {
                 Some((_, ps)) => ps.push(p99),
@@ -634,7 +670,7 @@ impl OmgReach {
             };
             let within = |cm: f64| ps.iter().filter(|&&p| p <= cm).count();
             s += &format!(
-                "f64 with input noise {amount} std: p99 joint vs f64 {:.3} .. {:.3} cm (median {:.3}) over {} seeds; <= 1 cm on {}, <= 2 cm on {}\n",
+                "f64 with input noise {amount:e} std: p99 joint vs f64 {:.3} .. {:.3} cm (median {:.3}) over {} seeds; <= 1 cm on {}, <= 2 cm on {}\n",
                 ps[0],
                 ps[n - 1],
                 median,

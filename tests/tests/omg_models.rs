@@ -367,8 +367,8 @@ fn input_noise_rows_perturb_the_f64_rollout_and_nothing_else() {
         return;
     };
     let dir = model_dir("tiny_fe_r1");
-    let rows =
-        host_sim::omg_reach::input_noise_rows(&dir, &data, Some(2), &[0.0, 1e-3], 2).unwrap();
+    let two = host_sim::omg_reach::Judged::new(&dir, &data, Some(2)).unwrap();
+    let rows = host_sim::omg_reach::input_noise_rows(&two, &[0.0, 1e-3], 2).unwrap();
     let names: Vec<&str> = rows.iter().map(|r| r.run.as_str()).collect();
     assert_eq!(
         names,
@@ -390,14 +390,12 @@ fn input_noise_rows_perturb_the_f64_rollout_and_nothing_else() {
         "seeds draw different noise"
     );
     for bad in [-1e-3, f64::NAN] {
-        let e = host_sim::omg_reach::input_noise_rows(&dir, &data, Some(1), &[bad], 1).unwrap_err();
+        let e = host_sim::omg_reach::input_noise_rows(&two, &[bad], 1).unwrap_err();
         assert!(e.to_string().contains("--input-noise"), "{e}");
     }
-    assert!(
-        host_sim::omg_reach::input_noise_rows(&dir, &data, Some(1), &[1e-3], 0)
-            .unwrap()
-            .is_empty()
-    );
+    assert!(host_sim::omg_reach::input_noise_rows(&two, &[1e-3], 0)
+        .unwrap()
+        .is_empty());
 }
 
 /// The device's configuration of the reaching controller: the loop in f32
