@@ -13,7 +13,7 @@ use std::path::PathBuf;
 /// layers, as `exporter` takes them (with its defaults: a PFNN's int8 blob
 /// is rounded error-aware, an OMG graph's to nearest); applied to the int8
 /// blob.
-#[derive(Clone, Debug, Default, clap::Args)]
+#[derive(Clone, Debug, clap::Args)]
 pub struct Int8Knobs {
     /// Rounding of the int8 blob's dense weights (exporter --rounding).
     #[arg(long, value_enum)]
@@ -90,6 +90,23 @@ pub fn tour_rollouts(net: &Net, n: usize, seed: u64) -> Result<Recorded> {
             phases: d.phases.iter().map(f32_round).collect(),
         }),
     })
+}
+
+/// The command line's defaults: the exporter's own, no recorded rows.
+impl Default for Int8Knobs {
+    fn default() -> Self {
+        Self {
+            rounding: None,
+            compensation_samples: None,
+            calibration: None,
+            calibration_tours: None,
+            tour_seed: 1,
+            calibration_clips: None,
+            calibration_weight: None,
+            int16_layers: Vec::new(),
+            int16_budget: None,
+        }
+    }
 }
 
 impl Int8Knobs {
@@ -209,5 +226,18 @@ mod tests {
         assert!(Int8Knobs::default()
             .apply(&net, QuantOptions::default())
             .is_ok());
+    }
+
+    /// `Int8Knobs::default()`, which tests and library callers use, is what
+    /// the command line gives when no flag is passed.
+    #[test]
+    fn default_is_the_command_lines() {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            knobs: Int8Knobs,
+        }
+        let parsed = <Cli as clap::Parser>::parse_from(["host-sim"]).knobs;
+        assert_eq!(format!("{parsed:?}"), format!("{:?}", Int8Knobs::default()));
     }
 }
