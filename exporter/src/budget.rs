@@ -13,7 +13,7 @@
 //! The unit of choice is a whole layer: the runtime keeps one weight width
 //! per layer, so on a three-layer network the budget buys at most three
 //! steps, and a budget smaller than the smallest layer's extra bytes buys
-//! nothing (the report says so).
+//! nothing (the report says so, and which layers it did not try).
 
 use phasegate::blob::WeightFormat;
 use phasegate::{Model, Phase, Runtime};
@@ -67,6 +67,38 @@ pub struct BudgetReport {
     pub eval_rows: usize,
     /// Every trial.
     pub trials: Vec<Trial>,
+    /// Layers never tried: their int16 weights alone would add more bytes
+    /// than the budget had left.
+    pub unaffordable: Vec<Unaffordable>,
+}
+
+/// A layer the budget could not buy whatever it gains.
+#[derive(Clone, Debug, Serialize)]
+pub struct Unaffordable {
+    /// Layer index (of a graph: node index).
+    pub layer: usize,
+    /// Bytes its int16 weights add at least (one per int8 weight).
+    pub min_extra_bytes: usize,
+    /// What was left of the budget when it came up.
+    pub left_bytes: usize,
+}
+
+/// Section alignment and header varints can move a blob's length by a
+/// few bytes either way.
+const LAYOUT_SLACK: usize = 64;
+
+/// The bytes a layer of `report` grows by at least when its weights go
+/// from int8 to int16: one per weight of a dense layer, less
+/// [`LAYOUT_SLACK`]. 0 (always worth a trial) for the other forms, whose
+/// weight counts the report does not give.
+fn min_extra_bytes(report: &ExportReport, layer: usize) -> usize {
+    report
+        .layers
+        .iter()
+        .find(|r| r.index == layer && r.form == "dense" && r.weights == "int8")
+        .map_or(0, |r| {
+            (r.experts * r.in_dim * r.out_dim).saturating_sub(LAYOUT_SLACK)
+        })
 }
 
 /// Exports `net` with int8 weights but for the layers `--int16-budget`
@@ -95,6 +127,14 @@ pub fn export_with_int16_budget(
     };
     let (mut blob, mut report, rms_int8) = try_layers(&[])?;
     let (mut rms, mut chosen, mut trials) = (rms_int8, Vec::<usize>::new(), Vec::<Trial>::new());
+    // Known before any trial: a layer whose int16 weights alone outgrow
+    // the budget is not exported to find out (on the real PFNN each trial
+    // is a full export of half a minute or more).
+    let floor: std::collections::BTreeMap<usize, usize> = keys
+        .iter()
+        .map(|&l| (l, min_extra_bytes(&report, l)))
+        .collect();
+    let mut unaffordable = Vec::new();
     // A layer's extra bytes do not depend on the others: measured in the
     // first round, they rule out later trials that cannot fit.
     let mut extra_of = std::collections::BTreeMap::new();
@@ -102,7 +142,19 @@ pub fn export_with_int16_budget(
         let spent = spent_bytes(&trials);
         let mut best: Option<(f64, usize, Vec<u8>, ExportReport, f64)> = None;
         for &l in keys.iter().filter(|l| !chosen.contains(l)) {
-            if round > 0 && spent + extra_of.get(&l).copied().unwrap_or(0) > budget {
+            let at_least = extra_of
+                .get(&l)
+                .or_else(|| floor.get(&l))
+                .copied()
+                .unwrap_or(0);
+            if spent + at_least > budget {
+                if round == 0 {
+                    unaffordable.push(Unaffordable {
+                        layer: l,
+                        min_extra_bytes: at_least,
+                        left_bytes: budget - spent,
+                    });
+                }
                 continue;
             }
             let mut with = chosen.clone();
@@ -140,6 +192,7 @@ pub fn export_with_int16_budget(
         rms,
         eval_rows: eval.inputs.len(),
         trials,
+        unaffordable,
     });
     Ok((blob, report))
 }

@@ -61,7 +61,8 @@ fn error_aware_rounding_lowers_the_real_pfnn_int8_error() {
 }
 
 /// `--int16-budget` on the default model: no budget is the plain int8
-/// blob, a budget buys whole layers that fit, the report adds up.
+/// blob and exports nothing more, a budget buys whole layers that fit,
+/// the report adds up.
 #[test]
 fn int16_budget_buys_measured_layers_within_the_budget() {
     use exporter::budget::export_with_int16_budget;
@@ -75,15 +76,39 @@ fn int16_budget_buys_measured_layers_within_the_budget() {
     let b = report.int16_budget.unwrap();
     assert!(b.int16_layers.is_empty() && b.spent_bytes == 0);
     assert_eq!(b.rms, b.rms_int8);
-    assert_eq!(b.trials.len(), net.layers.len(), "every layer tried once");
+    // No layer can fit, so none is exported to find out; each is reported
+    // with the bytes it would need at least.
+    assert!(b.trials.is_empty(), "{:?}", b.trials);
+    let skipped: Vec<usize> = b.unaffordable.iter().map(|u| u.layer).collect();
+    assert_eq!(skipped, (0..net.layers.len()).collect::<Vec<_>>());
     assert!(b
-        .trials
+        .unaffordable
         .iter()
-        .all(|t| t.extra_bytes > 0 && t.rms.is_finite()));
+        .all(|u| u.min_extra_bytes > 0 && u.left_bytes == 0));
+
+    // Room for everything: every layer is tried in the first round, what
+    // each adds is at least the floor the zero budget reported, every layer
+    // that helps is bought, and the blob never exceeds int8 + budget.
+    let all = plain.len();
+    let (blob, report) = budgeted(all);
+    let r = report.int16_budget.unwrap();
+    assert!(r.unaffordable.is_empty());
+    let first: Vec<&exporter::budget::Trial> = r.trials.iter().filter(|t| t.round == 0).collect();
+    assert_eq!(first.len(), net.layers.len(), "every layer tried once");
+    for (t, u) in first.iter().zip(&b.unaffordable) {
+        assert_eq!(t.layer, u.layer);
+        assert!(t.extra_bytes > 0 && t.rms.is_finite(), "{t:?}");
+        assert!(t.extra_bytes >= u.min_extra_bytes, "{t:?} {u:?}");
+    }
+    assert!(r.spent_bytes <= all && blob.len() == plain.len() + r.spent_bytes);
+    assert!(!r.int16_layers.is_empty() && r.rms <= b.rms_int8);
+    println!(
+        "default model: int8 rms {:.4}, budget {all}: layers {:?}, rms {:.4}, +{} bytes",
+        r.rms_int8, r.int16_layers, r.rms, r.spent_bytes
+    );
 
     // Just enough for the best layer per byte.
-    let best = b
-        .trials
+    let best = first
         .iter()
         .filter(|t| t.rms < b.rms_int8)
         .max_by(|x, y| {
@@ -103,16 +128,9 @@ fn int16_budget_buys_measured_layers_within_the_budget() {
         report.layers[best.layer]
     );
     assert!(r.rms < r.rms_int8);
-
-    // Room for everything: every layer that helps is bought, in order of
-    // gain, and the blob never exceeds int8 + budget.
-    let all = plain.len();
-    let (blob, report) = budgeted(all);
-    let r = report.int16_budget.unwrap();
-    assert!(r.spent_bytes <= all && blob.len() == plain.len() + r.spent_bytes);
-    assert!(!r.int16_layers.is_empty() && r.rms <= b.rms_int8);
-    println!(
-        "default model: int8 rms {:.4}, budget {all}: layers {:?}, rms {:.4}, +{} bytes",
-        r.rms_int8, r.int16_layers, r.rms, r.spent_bytes
-    );
+    // Layers whose floor is above that budget were not tried.
+    for u in &r.unaffordable {
+        assert!(u.min_extra_bytes > best.extra_bytes, "{u:?}");
+        assert!(r.trials.iter().all(|t| t.layer != u.layer), "{u:?}");
+    }
 }
