@@ -152,7 +152,7 @@ pub fn export_with_int16_budget(
                     unaffordable.push(Unaffordable {
                         layer: l,
                         min_extra_bytes: at_least,
-                        left_bytes: budget - spent,
+                        left_bytes: budget.saturating_sub(spent),
                     });
                 }
                 continue;

@@ -434,6 +434,18 @@ fn summary(r: &ExportReport, out: &Path) {
             l.index, l.form, l.out_dim, l.in_dim, l.experts, l.accumulator, l.weight_sqnr_db
         );
     }
+    if let Some(b) = &r.int16_budget {
+        println!(
+            "int16 budget: {} of {} bytes spent, int16 layers {:?}, output RMS {:.4} -> {:.4} (output stds)",
+            b.spent_bytes, b.budget_bytes, b.int16_layers, b.rms_int8, b.rms
+        );
+        for u in &b.unaffordable {
+            println!(
+                "  layer {} not tried: its int16 weights add at least {} bytes, {} were left",
+                u.layer, u.min_extra_bytes, u.left_bytes
+            );
+        }
+    }
     println!(
         "overflow proof: {}",
         if r.overflow_proof {

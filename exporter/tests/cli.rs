@@ -669,7 +669,7 @@ fn calibration_rollouts_reach_the_quantiser_and_the_report() {
     assert_eq!(r["options"]["calibration_data"]["rows"], 300, "{r}");
     assert_eq!(r["options"]["calibration_data"]["source"], d);
     let (a, b) = (
-        std::fs::read(plain).unwrap(),
+        std::fs::read(&plain).unwrap(),
         std::fs::read(calibrated).unwrap(),
     );
     assert_eq!(a.len(), b.len(), "same settings, same size");
@@ -750,6 +750,45 @@ fn calibration_rollouts_reach_the_quantiser_and_the_report() {
     let b = &json(&report)["int16_budget"];
     assert!(b["spent_bytes"].as_u64().unwrap() <= 100_000, "{b}");
     assert_eq!(b["trials"][0]["round"], 0, "{b}");
+    assert_eq!(b["unaffordable"].as_array().unwrap().len(), 0, "{b}");
+    // A budget below every layer's int16 weights exports nothing more: the
+    // plain blob, no trial, every layer listed with its floor, and the
+    // summary names them.
+    let (o, tiny, report) = export("tiny-budget", &["--int16-budget", "50"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read(&tiny).unwrap(),
+        std::fs::read(&plain).unwrap()
+    );
+    let b = &json(&report)["int16_budget"];
+    assert_eq!(b["trials"].as_array().unwrap().len(), 0, "{b}");
+    let floors: Vec<u64> = b["unaffordable"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|u| u["min_extra_bytes"].as_u64().unwrap())
+        .collect();
+    assert_eq!(floors.len(), 3, "{b}");
+    assert!(floors.iter().all(|&f| f > 50), "{b}");
+    let o = Command::new(env!("CARGO_BIN_EXE_exporter"))
+        .env("PHASEGATE_VERBOSE", "1")
+        .args([
+            "pfnn",
+            "--weights",
+            weights.to_str().unwrap(),
+            "--gating",
+            "cubic",
+            "-o",
+            tiny.to_str().unwrap(),
+            "--int16-budget",
+            "50",
+        ])
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(out.contains("int16 budget: 0 of 50 bytes spent"), "{out}");
+    assert!(out.contains("layer 1 not tried"), "{out}");
     let (o, blob, _) = export("wide", &["--int16-budget", "1000", "--weight-bits", "16"]);
     assert!(!o.status.success() && !blob.exists());
     assert!(stderr(&o).contains("--int16-budget"), "{}", stderr(&o));
