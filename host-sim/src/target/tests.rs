@@ -598,18 +598,17 @@ fn firmware_log_snapshots() {
 
 /// Issue 4 point 3: the real PFNN, int8 weights, cubic gating (about
 /// 2.4 MB), bit-exact under QEMU for 10 frames of realistic inputs
-/// (`Xmean + Xstd * N(0, 1)`). Needs `../shared/pfnn/network`.
+/// (`Xmean + Xstd * N(0, 1)`). Needs the weights: `$PHASEGATE_PFNN_DIR`,
+/// as the other real-PFNN tests read it, or `../shared/pfnn/network`.
 #[test]
 fn real_pfnn_int8_cubic_is_bit_exact_on_the_target() {
     use exporter::net::{GatingMode, Net};
     use npyz::WriterBuilder;
     let name = "real_pfnn_int8_cubic_is_bit_exact_on_the_target";
-    let dir = repo_root()
-        .join("..")
-        .join("shared")
-        .join("pfnn")
-        .join("network");
-    if !dir.exists() {
+    let dir = std::env::var_os("PHASEGATE_PFNN_DIR")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| repo_root().join("../shared/pfnn/network"));
+    if !dir.join("Xmean.bin").is_file() {
         eprintln_direct!("SKIPPED {name}: no real PFNN at {}", dir.display());
         return;
     }
