@@ -639,7 +639,8 @@ fn calibration_rollouts_reach_the_quantiser_and_the_report() {
     small_pfnn(&weights);
     let data = tmp.path().join("rollouts.npz");
     rollout_data(&data, 300);
-    let export = |name: &str, extra: &[&str]| {
+    // `verbose`: the summary a terminal gets (PHASEGATE_VERBOSE).
+    let export_shown = |name: &str, extra: &[&str], verbose: bool| {
         let blob = tmp.path().join(format!("{name}.blob"));
         let report = tmp.path().join(format!("{name}.json"));
         let mut args = vec![
@@ -654,9 +655,14 @@ fn calibration_rollouts_reach_the_quantiser_and_the_report() {
             report.to_str().unwrap(),
         ];
         args.extend_from_slice(extra);
-        let o = exporter(&args);
+        let mut c = Command::new(env!("CARGO_BIN_EXE_exporter"));
+        if verbose {
+            c.env("PHASEGATE_VERBOSE", "1");
+        }
+        let o = c.args(&args).output().expect("exporter runs");
         (o, blob, report)
     };
+    let export = |name: &str, extra: &[&str]| export_shown(name, extra, false);
     let (o, plain, _) = export("plain", &[]);
     assert!(o.status.success(), "{}", stderr(&o));
     let d = data.to_str().unwrap();
@@ -770,21 +776,7 @@ fn calibration_rollouts_reach_the_quantiser_and_the_report() {
         .collect();
     assert_eq!(floors.len(), 3, "{b}");
     assert!(floors.iter().all(|&f| f > 50), "{b}");
-    let o = Command::new(env!("CARGO_BIN_EXE_exporter"))
-        .env("PHASEGATE_VERBOSE", "1")
-        .args([
-            "pfnn",
-            "--weights",
-            weights.to_str().unwrap(),
-            "--gating",
-            "cubic",
-            "-o",
-            tiny.to_str().unwrap(),
-            "--int16-budget",
-            "50",
-        ])
-        .output()
-        .unwrap();
+    let (o, _, _) = export_shown("tiny-shown", &["--int16-budget", "50"], true);
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(out.contains("int16 budget: 0 of 50 bytes spent"), "{out}");
