@@ -127,26 +127,21 @@ pub fn export_with_int16_budget(
     };
     let (mut blob, mut report, rms_int8) = try_layers(&[])?;
     let (mut rms, mut chosen, mut trials) = (rms_int8, Vec::<usize>::new(), Vec::<Trial>::new());
-    // Known before any trial: a layer whose int16 weights alone outgrow
-    // the budget is not exported to find out (on the real PFNN each trial
-    // is a full export of half a minute or more).
-    let floor: std::collections::BTreeMap<usize, usize> = keys
+    // What each layer adds at least: its floor before any trial (a layer
+    // whose int16 weights alone outgrow the budget is not exported to find
+    // out; on the real PFNN a trial is a full export of half a minute or
+    // more), then what its first-round trial measured (a layer's extra
+    // bytes do not depend on the others).
+    let mut extra_of: std::collections::BTreeMap<usize, usize> = keys
         .iter()
         .map(|&l| (l, min_extra_bytes(&report, l)))
         .collect();
     let mut unaffordable = Vec::new();
-    // A layer's extra bytes do not depend on the others: measured in the
-    // first round, they rule out later trials that cannot fit.
-    let mut extra_of = std::collections::BTreeMap::new();
     for round in 0..layers {
         let spent = spent_bytes(&trials);
         let mut best: Option<(f64, usize, Vec<u8>, ExportReport, f64)> = None;
         for &l in keys.iter().filter(|l| !chosen.contains(l)) {
-            let at_least = extra_of
-                .get(&l)
-                .or_else(|| floor.get(&l))
-                .copied()
-                .unwrap_or(0);
+            let at_least = extra_of.get(&l).copied().unwrap_or(0);
             if spent + at_least > budget {
                 if round == 0 {
                     unaffordable.push(Unaffordable {
