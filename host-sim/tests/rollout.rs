@@ -156,6 +156,7 @@ fn rollout_compare_render_and_plot_end_to_end() {
         b: Some(again.clone()),
         out: png.clone(),
         snapshots: 6,
+        gif: None,
     })
     .unwrap();
     let errs = dir.path().join("e.png");
@@ -253,6 +254,7 @@ fn omg_rollout_compare_and_render_end_to_end() {
         b: Some(float_out.clone()),
         out: png.clone(),
         snapshots: 4,
+        gif: None,
     })
     .unwrap();
     assert_eq!(&std::fs::read(&png).unwrap()[..8], b"\x89PNG\r\n\x1a\n");

@@ -47,6 +47,10 @@ pub struct RenderArgs {
     /// Number of snapshots.
     #[arg(long, default_value_t = 10)]
     pub snapshots: usize,
+    /// OMG rollouts: also write an animated GIF of the rollout here (one
+    /// GIF frame every 3 rollout frames).
+    #[arg(long, value_name = "PATH")]
+    pub gif: Option<PathBuf>,
 }
 
 /// `host-sim render`: side views of the skeleton at regular frames (each in
@@ -55,6 +59,12 @@ pub struct RenderArgs {
 pub fn render_cmd(args: &RenderArgs) -> Result<()> {
     if crate::omg_rollout::record::OmgRecord::is_record(&args.a)? {
         return render_omg(args);
+    }
+    if let Some(gif) = &args.gif {
+        bail!(
+            "--gif {}: only OMG reaching rollouts have a GIF",
+            gif.display()
+        );
     }
     let a = Rollout::read(&args.a)?;
     let b = args.b.as_ref().map(|p| Rollout::read(p)).transpose()?;
@@ -360,10 +370,10 @@ pub fn plot_errors(cmp: &crate::rollout::Comparison, title: &str) -> Canvas {
     c
 }
 
-/// `host-sim render` of OMG reaching rollouts: the front view of
-/// [`crate::omg_rollout::picture`].
+/// `host-sim render` of OMG reaching rollouts: the front and side views of
+/// [`crate::omg_rollout::picture`], and with `--gif` its animation.
 fn render_omg(args: &RenderArgs) -> Result<()> {
-    use crate::omg_rollout::picture::{draw, Layer};
+    use crate::omg_rollout::picture::{draw, draw_gif, Layer};
     use crate::omg_rollout::record::OmgRecord;
     let a = OmgRecord::read(&args.a)?;
     let b = args.b.as_ref().map(|p| OmgRecord::read(p)).transpose()?;
@@ -401,11 +411,15 @@ fn render_omg(args: &RenderArgs) -> Result<()> {
     }
     draw(
         &layers,
-        "OMG reaching rollout: front view",
+        "OMG reaching rollout: front and side views",
         args.snapshots.clamp(1, 40),
         &args.out,
     )?;
     println!("wrote {}", args.out.display());
+    if let Some(gif) = &args.gif {
+        draw_gif(&layers, "OMG reaching rollout", gif, 3)?;
+        println!("wrote {}", gif.display());
+    }
     Ok(())
 }
 
