@@ -17,10 +17,14 @@ target_pos     3K      per key joint target position
 target_rot     6K      per key joint target forward x, y, z then up x, y, z
 contact        K       per key joint 1 if within 0.1 m of its target (not a model
                        input; the block function G of the phases)
+dof            D       the IK's joint angles q (radians, rig DOF order: rigs.py);
+                       not a model input: what the pose was made from (forward
+                       kinematics of q gives pos and rot), and the training target
+                       of models that output joint-angle changes
 =============  ======  ============================================================
 
 The model vector X_i of spec §1.2 is the first ``12J + 17K`` values (phase .. target_rot);
-``contact`` follows it. Width = 12J + 18K.
+``contact`` and ``dof`` follow it. Width = 12J + 18K + D.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ BLOCKS = (
     ("target_pos", "key", ("x", "y", "z"), True),
     ("target_rot", "key", ("fx", "fy", "fz", "ux", "uy", "uz"), True),
     ("contact", "key", ("flag",), False),
+    ("dof", "dof", ("q",), False),
 )
 
 
@@ -56,8 +61,13 @@ def layout(rig) -> dict:
     off = 0
     model_width = 0
     for name, per, comps, model in BLOCKS:
-        items = J if per == "joint" else K
+        items = {"joint": J, "key": K, "dof": rig.n_dofs}[per]
         size = items * len(comps)
+        names = {
+            "joint": rig.joint_names,
+            "key": list(KEY_JOINT_NAMES),
+            "dof": [f"{rig.joint_names[j]}.{'xyz'[a]}" for j, a in zip(rig.dof_joint, rig.dof_axis)],
+        }[per]
         blocks.append(
             dict(
                 name=name,
@@ -65,7 +75,7 @@ def layout(rig) -> dict:
                 size=size,
                 per=per,
                 components=list(comps),
-                items=rig.joint_names if per == "joint" else list(KEY_JOINT_NAMES),
+                items=names,
                 model_input=model,
             )
         )
@@ -186,4 +196,5 @@ def assemble(rig, sim: dict, dtype=np.float32) -> np.ndarray:
     t_fwd_up = np.concatenate([trot[..., :, 2], trot[..., :, 1]], axis=-1)
     out[..., sl["target_rot"]] = t_fwd_up.reshape(B, T, 6 * K)
     out[..., sl["contact"]] = contact
+    out[..., sl["dof"]] = sim["q"]
     return out.astype(dtype)

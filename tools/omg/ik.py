@@ -44,7 +44,7 @@ class IKParams:
     rot_weight: float = 0.05  # metres per radian of orientation error (priority 2)
     max_pos_err: float = 0.3  # m, clamp of the positional error per step
     max_rot_err: float = 1.0  # rad, clamp of the orientation error per step
-    rest_gain: float = 0.05  # null-space pull towards the rest pose, per frame
+    rest_gain: float = 0.0  # null-space pull towards the rest pose, per frame (off: it held hands short of targets)
 
     def to_json(self) -> dict:
         return dict(self.__dict__)
@@ -143,8 +143,11 @@ class HandIK:
         h = 0.5 * self.p.a_max * DT
         return np.sqrt(h * h + 2 * self.p.a_max * np.maximum(room, 0.0)) - h
 
-    def step(self, q, v, t_pos, t_rot):
-        """One frame. q, v: (B, D); t_pos (B, 2, 3); t_rot (B, 2, 3, 3). Returns q, v."""
+    def desired_velocity(self, q, t_pos, t_rot):
+        """The joint velocity (B, D) the IK asks for at q (rad/s): the DLS step of one frame
+        as a velocity, scaled as a whole so that no DOF is faster than ``v_max`` nor than
+        ``sqrt(2 a_max |step|)`` (a speed it can stop from within the step). A function of
+        the configuration and the targets only; :meth:`limit` turns it into motion."""
         rig, p = self.rig, self.p
         P, G, axes = forward_kinematics(rig, q, with_axes=True)
         e_pos = _clamp_norm(t_pos - P[:, self.effectors], p.max_pos_err)
@@ -153,13 +156,17 @@ class HandIK:
         J = self.jacobian(P, G, axes)
         pull = p.rest_gain * (-q)  # rest pose is q = 0
         dq = self._dls(J, e, pull, q)
-
-        # Velocity and acceleration limits (the whole vector is scaled).
         peak = np.abs(dq).max(axis=1, keepdims=True)
         v_cap = np.minimum(p.v_max, np.sqrt(2 * p.a_max * peak))
         v_des = dq / DT
         v_des *= np.minimum(1.0, v_cap / np.maximum(np.abs(v_des).max(axis=1, keepdims=True), 1e-12))
-        # Approach joint limits no faster than a_max allows stopping at them.
+        return v_des
+
+    def limit(self, q, v, v_des):
+        """One frame of motion towards ``v_des`` (B, D) from (q, v): no DOF approaches its
+        joint limit faster than it can stop there at ``a_max``; each DOF's velocity changes
+        by at most ``a_max`` per second; q is clamped to the limits. Returns (q, v)."""
+        rig, p = self.rig, self.p
         v_des = np.minimum(v_des, self._stop_speed(rig.upper - q))
         v_des = np.maximum(v_des, -self._stop_speed(q - rig.lower))
         dv = v_des - v
@@ -167,3 +174,7 @@ class HandIK:
         q_new = np.clip(q + v_new * DT, rig.lower, rig.upper)
         v_new = (q_new - q) / DT
         return q_new, v_new
+
+    def step(self, q, v, t_pos, t_rot):
+        """One frame. q, v: (B, D); t_pos (B, 2, 3); t_rot (B, 2, 3, 3). Returns q, v."""
+        return self.limit(q, v, self.desired_velocity(q, t_pos, t_rot))

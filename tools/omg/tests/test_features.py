@@ -29,16 +29,19 @@ def test_layout_sizes_match_spec(name):
     assert sizes == {
         "phase": 2 * K, "pos": 3 * J, "rot": 6 * J, "vel": 3 * J, "pos_cost": 3 * K,
         "rot_cost": 3 * K, "target_pos": 3 * K, "target_rot": 6 * K, "contact": K,
+        "dof": rig.n_dofs,
     }
-    # Spec §1.2 with 6-D target rotation: n = 12J + 17K (440 for R1); contact after it.
+    # Spec §1.2 with 6-D target rotation: n = 12J + 17K (440 for R1); contact and the
+    # joint angles after it.
     assert lay["model_width"] == 12 * J + 17 * K
-    assert lay["width"] == 12 * J + 18 * K
+    assert lay["width"] == 12 * J + 18 * K + rig.n_dofs
     off = 0
     for b in lay["blocks"]:  # contiguous, in the spec's order
         assert b["offset"] == off
         off += b["size"]
     assert [b["name"] for b in lay["blocks"]][:4] == ["phase", "pos", "rot", "vel"]
-    assert all(b["model_input"] for b in lay["blocks"][:-1]) and not lay["blocks"][-1]["model_input"]
+    assert all(b["model_input"] for b in lay["blocks"][:-2])
+    assert not any(b["model_input"] for b in lay["blocks"][-2:])
     json.dumps(lay)  # serialisable
 
 
@@ -252,10 +255,16 @@ def test_spawn_points():
 
 
 def test_plan_design():
-    plans = plan_clips(0)
-    assert len(plans) == 240
+    every = plan_clips(0)
+    plans = [p for p in every if p["kind"] == "cylinder"]
+    cont = [p for p in every if p["kind"] == "continuous"]
+    assert len(plans) == len(cont) == 240 and every[:240] == plans
     full = plan_clips(0, full=True)
-    assert len(full) == 960
+    assert sum(p["kind"] == "cylinder" for p in full) == 960
+    assert len(plan_clips(0, continuous=5)) == 245
+    for p in cont:
+        assert p["pairs"] is None and p["reps"] in (1, 2, 3) and len(p["draw_seed"]) == 3
+        assert (p["rotations"] is not None) == p["rotate"]
     for p in plans:
         assert len(p["pairs"]) == p["reps"] in (1, 2, 3)
         assert all(0 <= i < 40 for pair in p["pairs"] for i in pair)
