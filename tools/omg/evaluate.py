@@ -1,27 +1,21 @@
-"""Evaluate trained OMG models on held-out clips (NumPy only, no PyTorch).
+"""Evaluate OMG models in closed loop (NumPy only, no PyTorch).
 
-    python3 -m tools.omg.evaluate --data data/omg --models models/omg/tiny_fe_r1 ... \
+    python3 -m tools.omg.evaluate --data data/omg --models models/omg/tiny_fe_r1 ... \\
         --json models/omg/eval.json --markdown models/omg/eval.md
 
-Held-out clips: the rig's test and validation splits (48 clips; no model selection uses
-the validation split). Metrics (every model in both inference modes):
+Two test sets, neither used for training or for choosing a model:
 
-* one-step: teacher-forced, every frame pair (x_t -> x_{t+1}) of every clip.
-  ``re_mse`` = eq 3.6 as the author's code computes it: MSE over the pose slice (12J
-  values), here in the model's normalised units (per-feature z-scores);
-  ``one_step_pos_cm`` = mean joint position error of the decoded pose (cm).
-* rollout: frame 0 from the data, then 299 frames fed back (driven only by the data's
-  targets, which overwrite the target block every frame; grounded mode also recomputes the
-  costs). Per spawned hand target (clips.json ``reps`` targets per hand; the return to
-  rest is not counted): ``reach`` = the hand gets within 0.1 m before the data's next
-  target is due (the data's own schedule); ``frames`` = median frames from the target's
-  spawn to the first frame within 0.1 m (reached targets); ``final_m`` = mean hand-target
-  distance on the target's last frame; ``joint_cm`` = mean joint position error against the
-  ground truth over all frames and joints.
-* roughness (eq 3.9 in the author's code's form): per frame pair
-  dr_t = mean over joints and over the forward and up vectors of acos(cos_sim(r_t, r_t+1));
-  RMS = sqrt(mean_t dr_t^2) (radians per frame), per clip, averaged over clips; for the
-  rollout and for the ground truth.
+* **held-out clips**: the rig's test and validation splits (96 clips), each rolled out from
+  its frame 0 for its 300 frames, driven only by the data's targets (the data's schedule:
+  the next pair is due when the IK was done with the last);
+* **target scripts** (R1 models): the hand-written scripts of ``tools/omg/scripts``, each
+  from the rest pose.
+
+Metrics (``tools.omg.metrics``, the same definitions as ``host-sim omg-reach``): reach and
+**plausible** reach of the targets the hand does not start within 0.1 m of (those are
+counted apart), median frames to a plausible reach, mean final distance, bone-length error
+p50/p99, roughness. Beside every model: the data (the IK that generated it; on the scripts
+the same IK driven by the script) and holding the first frame still.
 """
 
 from __future__ import annotations
@@ -32,138 +26,182 @@ from pathlib import Path
 
 import numpy as np
 
-from .omg_np import CONTACT_RADIUS, NumpyOMG
+from . import metrics
+from . import scripts as sc
+from .ik import HandIK, IKParams, rot6_to_matrix
+from .omg_np import NumpyOMG, costs_from_frame
+from .rigs import KEY_JOINT_NAMES, build_rig, forward_kinematics
 
 
-def held_out(data: Path, rig: str, n: int):
+def held_out(data: Path, rig: str):
+    """Raw frames (B, T, width) of the test then validation split and each clip's spawned
+    target counts per hand."""
     d = data / rig
-    clips_meta = json.loads((d / "clips.json").read_text())
-    X, reps = [], []
+    meta = json.loads((d / "clips.json").read_text())
+    X, spawned = [], []
     for split in ("test", "val"):
-        arr = np.load(d / f"{split}.npy", mmap_mode="r")[:, :, :n].astype(np.float64)
-        meta = {c["row"]: c for c in clips_meta if c["split"] == split}
-        X.append(arr)
-        reps += [meta[r]["reps"] for r in range(arr.shape[0])]
-    return np.concatenate(X), np.asarray(reps)
+        X.append(np.load(d / f"{split}.npy").astype(np.float64))
+        by_row = {c["row"]: c for c in meta if c["split"] == split}
+        spawned += [by_row[r]["spawned"] for r in range(X[-1].shape[0])]
+    return np.concatenate(X), spawned, json.loads((d / "layout.json").read_text())
 
 
-def hand_targets(tpos: np.ndarray, reps: int):
-    """[(start, end)] of the first ``reps`` constant-target intervals of one hand (T, 3)."""
-    T = tpos.shape[0]
-    ch = np.nonzero(np.linalg.norm(np.diff(tpos, axis=0), axis=1) > 1e-6)[0] + 1
-    bounds = [0] + ch.tolist() + [T]
-    iv = list(zip(bounds[:-1], bounds[1:]))
-    return iv[:reps]
+def _blocks(lay):
+    return {b["name"]: slice(b["offset"], b["offset"] + b["size"]) for b in lay["blocks"]}
 
 
-def rms_roughness(rot: np.ndarray, J: int) -> float:
-    """rot (T, 6J) -> sqrt(mean_t dr_t^2)."""
-    r = rot.reshape(rot.shape[0], J, 2, 3)
-    r = r / np.maximum(np.linalg.norm(r, axis=-1, keepdims=True), 1e-8)
-    cos = (r[1:] * r[:-1]).sum(-1)
-    dr = np.arccos(np.clip(cos, -1, 1)).mean(axis=(1, 2))
-    return float(np.sqrt((dr**2).mean()))
+def _summary(frames, target_pos, intervals, sl, key, parents, rest_len):
+    c = metrics.ReachCounts()
+    for f, tp, iv in zip(frames, target_pos, intervals):
+        metrics.add_clip(c, f, tp, iv, sl, key, parents, rest_len)
+    return c.summary()
 
 
-def reach_stats(gen_pos, clips, cfg, reps):
-    """gen_pos (B, T, J, 3); returns per-target lists."""
+def rollout_clips(m: NumpyOMG, clips: np.ndarray, lay: dict) -> np.ndarray:
+    """The model's closed-loop frames (B, T, n) on raw clips with the data's targets."""
+    n = m.cfg["model_width"]
+    sl = _blocks(lay)
+    if m.dof_form:
+        q0 = clips[:, 0, sl["dof"]]
+        frames, _ = m.rollout_dof(clips[:, 0, :n], q0, q0 * m.fps, clips[:, :, m.sl["target"]])
+        return frames
+    return m.rollout(clips[:, :, :n], mode="grounded")
+
+
+def rest_frame(cfg: dict, rig, target_block: np.ndarray) -> np.ndarray:
+    """The frame of the rest pose (q = 0, at rest: zero velocities and phases) with a target
+    block, its costs grounded."""
     sl = {k: slice(*v) for k, v in cfg["slices"].items()}
-    key = cfg["key_joint_indices"]
-    K = cfg["K"]
-    out = dict(reached=[], frames=[], final=[])
-    B, T = clips.shape[:2]
-    tpos = clips[:, :, sl["target_pos"]].reshape(B, T, K, 3)
-    for b in range(B):
-        for h in range(2):  # the hands; the feet's targets never move
-            d = np.linalg.norm(gen_pos[b, :, key[h]] - tpos[b, :, h], axis=-1)
-            for s, e in hand_targets(tpos[b, :, h], int(reps[b])):
-                hit = np.nonzero(d[s:e] < CONTACT_RADIUS)[0]
-                out["reached"].append(len(hit) > 0)
-                if len(hit):
-                    out["frames"].append(int(hit[0]))
-                out["final"].append(float(d[e - 1]))
+    P, G = forward_kinematics(rig, np.zeros((1, rig.n_dofs)))
+    J = rig.n_joints
+    x = np.zeros((1, cfg["model_width"]))
+    x[:, sl["pos"]] = P.reshape(1, 3 * J)
+    x[:, sl["rot"]] = np.concatenate([G[..., :, 2], G[..., :, 1]], axis=-1).reshape(1, 6 * J)
+    x[:, sl["target"]] = target_block
+    x[:, sl["cost"]] = costs_from_frame(x, cfg)
+    return x[0]
+
+
+def ik_rollout(rig, blocks: np.ndarray, K: int):
+    """Joint positions (T, J, 3) and rotations (T, J, 3, 3) of the data's IK driven by
+    per-frame target blocks (T, 9K) from rest (each frame's step uses that frame's targets,
+    as the generator does)."""
+    ik = HandIK(rig, IKParams())
+    q = np.zeros((1, rig.n_dofs))
+    v = np.zeros_like(q)
+    P, G = [], []
+    for b in blocks:
+        q, v = ik.step(q, v, b[None, :6].reshape(1, 2, 3), rot6_to_matrix(b[None, 3 * K : 3 * K + 12].reshape(1, 2, 6)))
+        p, g = forward_kinematics(rig, q)
+        P.append(p[0])
+        G.append(g[0])
+    return np.stack(P), np.stack(G)
+
+
+def script_set(cfg: dict):
+    """[(name, blocks (T, 9K), intervals [(hand, start, end)], unreachable [(hand, s, e)])]."""
+    out = []
+    start = sc.start_block(cfg["rig"])
+    for path in sc.script_files():
+        s = sc.load(path)
+        T = sc.script_frames(s)
+        blocks = sc.blocks(s, KEY_JOINT_NAMES, start, T)
+        ivs = [iv for iv in sc.intervals(s, KEY_JOINT_NAMES, T) if iv["key"] < 2]
+        out.append((path.stem, blocks,
+                    [(iv["key"], iv["start"], iv["end"]) for iv in ivs if not iv["unreachable"]],
+                    [(iv["key"], iv["start"], iv["end"]) for iv in ivs if iv["unreachable"]]))
     return out
 
 
-def evaluate_model(model_dir: Path, data: Path, modes=("grounded", "faithful")) -> dict:
+def unreachable_report(frames: np.ndarray, blocks, ivs, sl, key, parents, rest_len) -> list:
+    """For each unreachable target: distance at its start, closest and last, and the bone
+    errors on its frames (approached, not chased into a broken pose)."""
+    out = []
+    T = frames.shape[0]
+    pos = frames[:, sl["pos"]].reshape(T, -1, 3)
+    err = np.abs(metrics.bone_lengths(pos, parents) - rest_len)
+    for h, s, e in ivs:
+        d = np.linalg.norm(pos[:, key[h]] - blocks[:, 3 * h : 3 * h + 3], axis=-1)
+        out.append(dict(hand=h, start_m=float(d[s]), closest_m=float(d[s:e].min()), last_m=float(d[e - 1]),
+                        bone_err_max_cm=float(100 * err[s:e].max())))
+    return out
+
+
+def evaluate_scripts(m: NumpyOMG | None, cfg: dict, rig) -> dict:
+    """Rows on the target scripts: the model (or, with ``m`` None, the IK and holding still)."""
+    sl = {k: slice(*v) for k, v in cfg["slices"].items()}
+    key = cfg["key_joint_indices"]
+    K = cfg["K"]
+    parents = list(rig.parents)
+    rest_len = metrics.rest_bone_lengths(rig.offsets, parents)
+    rows = {}
+    runs = {}
+    for name, blocks, ivs, far in script_set(cfg):
+        tp = blocks[:, : 3 * K].reshape(len(blocks), K, 3)
+        x0 = rest_frame(cfg, rig, blocks[0])
+        if m is None:
+            P, G = ik_rollout(rig, blocks, K)
+            f_ik = np.repeat(x0[None], len(blocks), 0)
+            f_ik[:, sl["pos"]] = P.reshape(len(blocks), -1)
+            f_ik[:, sl["rot"]] = np.concatenate([G[..., :, 2], G[..., :, 1]], axis=-1).reshape(len(blocks), -1)
+            f_hold = np.repeat(x0[None], len(blocks), 0)
+            runs.setdefault("data (IK)", []).append((f_ik, tp, ivs, far, blocks))
+            runs.setdefault("hold still", []).append((f_hold, tp, ivs, far, blocks))
+        else:
+            frames, _ = m.rollout_dof(x0[None], np.zeros((1, rig.n_dofs)), np.zeros((1, rig.n_dofs)), blocks[None])
+            runs.setdefault("f64", []).append((frames[0], tp, ivs, far, blocks))
+    for run, items in runs.items():
+        c = metrics.ReachCounts()
+        far_rows = []
+        for f, tp, ivs, far, blocks in items:
+            metrics.add_clip(c, f, tp, ivs, sl, key, parents, rest_len)
+            far_rows += unreachable_report(f, blocks, far, sl, key, parents, rest_len)
+        r = c.summary()
+        r["unreachable"] = far_rows
+        rows[run] = r
+    return rows
+
+
+def evaluate_model(model_dir: Path, data: Path) -> dict:
     m = NumpyOMG(model_dir)
     cfg = m.cfg
-    J, n = cfg["J"], cfg["model_width"]
-    sl = m.sl
-    clips, reps = held_out(data, cfg["rig"], n)
+    clips, spawned, lay = held_out(data, cfg["rig"])
+    sl = _blocks(lay)
+    key = cfg["key_joint_indices"]
+    rig = build_rig(cfg["rig"])
+    parents = list(rig.parents)
+    rest_len = metrics.rest_bone_lengths(rig.offsets, parents)
+    K = cfg["K"]
     B, T = clips.shape[:2]
+    tp = clips[:, :, sl["target_pos"]].reshape(B, T, K, 3)
+    ivs = [metrics.clip_intervals(tp[b], spawned[b]) for b in range(B)]
+    frames = rollout_clips(m, clips, lay)
     res = dict(model=str(model_dir), name=Path(model_dir).name, rig=cfg["rig"], variant=cfg["variant"],
-               params=cfg["params"], macs=cfg["macs_per_frame"]["total"], trained_mode=cfg["mode"],
-               clips=int(B))
-    # one step
-    x = clips[:, :-1].reshape(-1, n)
-    y = clips[:, 1:].reshape(-1, n)
-    yn = m.step_norm(m.normalise(x))
-    res["re_mse"] = float(((yn[:, sl["pose"]] - m.normalise(y)[:, sl["pose"]]) ** 2).mean())
-    yp = m.denormalise(yn)[:, sl["pos"]].reshape(-1, J, 3)
-    res["one_step_pos_cm"] = float(100 * np.linalg.norm(yp - y[:, sl["pos"]].reshape(-1, J, 3), axis=-1).mean())
-    gt_pos = clips[:, :, sl["pos"]].reshape(B, T, J, 3)
-    gt = reach_stats(gt_pos, clips, cfg, reps)
-    res["gt"] = dict(reach=float(np.mean(gt["reached"])), frames=float(np.median(gt["frames"])),
-                     final_m=float(np.mean(gt["final"])),
-                     rms=float(np.mean([rms_roughness(c[:, sl["rot"]], J) for c in clips])),
-                     targets=len(gt["reached"]))
-    for mode in modes:
-        roll = m.rollout(clips, mode=mode)
-        pos = roll[:, :, sl["pos"]].reshape(B, T, J, 3)
-        st = reach_stats(pos, clips, cfg, reps)
-        res[mode] = dict(
-            reach=float(np.mean(st["reached"])),
-            frames=float(np.median(st["frames"])) if st["frames"] else None,
-            final_m=float(np.mean(st["final"])),
-            joint_cm=float(100 * np.linalg.norm(pos - gt_pos, axis=-1).mean()),
-            rms=float(np.mean([rms_roughness(c[:, sl["rot"]], J) for c in roll])),
-            finite=bool(np.isfinite(roll).all()),
-        )
+               pose_form=cfg.get("pose_form", "absolute"), params=cfg["params"],
+               macs=cfg["macs_per_frame"]["total"], clips=int(B))
+    res["held_out"] = {
+        "f64": _summary(frames, tp, ivs, sl, key, parents, rest_len),
+        "data": _summary(clips, tp, ivs, sl, key, parents, rest_len),
+        "hold still": _summary(np.repeat(clips[:, :1], T, 1), tp, ivs, sl, key, parents, rest_len),
+    }
+    if cfg["rig"] == "R1" and m.dof_form:
+        res["scripts"] = dict(evaluate_scripts(None, cfg, rig), **evaluate_scripts(m, cfg, rig))
     return res
 
 
-def evaluate_hold(data: Path, cfg_dir: Path) -> dict:
-    """Baseline without a model: every frame keeps frame 0's pose (the hands stay at rest)."""
-    cfg = json.loads((cfg_dir / "config.json").read_text())
-    J, n = cfg["J"], cfg["model_width"]
-    sl = {k: slice(*v) for k, v in cfg["slices"].items()}
-    clips, reps = held_out(data, cfg["rig"], n)
-    B, T = clips.shape[:2]
-    gt_pos = clips[:, :, sl["pos"]].reshape(B, T, J, 3)
-    pos = np.repeat(gt_pos[:, :1], T, axis=1)
-    st = reach_stats(pos, clips, cfg, reps)
-    return dict(name="hold frame 0 (no model)", rig=cfg["rig"], reach=float(np.mean(st["reached"])),
-                frames=float(np.median(st["frames"])) if st["frames"] else None,
-                final_m=float(np.mean(st["final"])),
-                joint_cm=float(100 * np.linalg.norm(pos - gt_pos, axis=-1).mean()))
-
-
 def markdown(results) -> str:
-    lines = [
-        "| model | rig | params | MACs/frame | trained for | one-step Re. MSE (pose, norm.) | one-step joint err cm "
-        "| rollout mode | reach % (data) | frames to reach, median (data) | final dist m (data) | joint err cm | RMS rad/frame (data) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
+    lines = ["| model | set | run | targets (near start) | reach % | plausible reach % | frames to reach | "
+             "final dist m | bone err p50 / p99 cm | roughness rad/frame |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
-        g = r["gt"]
-        for mode in ("grounded", "faithful"):
-            if mode not in r:
-                continue
-            q = r[mode]
-            fr = "–" if q["frames"] is None else f"{q['frames']:.0f}"
-            lines.append(
-                f"| {r['name']} | {r['rig']} | {r['params']:,} | {r['macs']:,} | {r['trained_mode']} | {r['re_mse']:.4f} "
-                f"| {r['one_step_pos_cm']:.2f} | {mode} | {100 * q['reach']:.1f} ({100 * g['reach']:.1f}) "
-                f"| {fr} ({g['frames']:.0f}) | {q['final_m']:.3f} ({g['final_m']:.3f}) | {q['joint_cm']:.2f} "
-                f"| {q['rms']:.4f} ({g['rms']:.4f}) |"
-            )
-    for r in results:
-        if "hold" in r:
-            h = r["hold"]
-            fr = "–" if h["frames"] is None else f"{h['frames']:.0f}"
-            lines.append(f"| {h['name']} | {h['rig']} | 0 | 0 | – | – | – | – | {100 * h['reach']:.1f} | {fr} "
-                         f"| {h['final_m']:.3f} | {h['joint_cm']:.2f} | 0 |")
+        for set_name in ("held_out", "scripts"):
+            for run, q in r.get(set_name, {}).items():
+                fr = "–" if q["frames_median"] is None else f"{q['frames_median']:.0f}"
+                ro = "–" if q["roughness"] is None else f"{q['roughness']:.4f}"
+                lines.append(
+                    f"| {r['name']} | {set_name.replace('_', '-')} | {run} | {q['targets']} ({q['near_start']}) "
+                    f"| {100 * q['reach']:.1f} | {100 * q['plausible_reach']:.1f} | {fr} | {q['final_m']:.3f} "
+                    f"| {q['bone_err_p50_cm']:.2f} / {q['bone_err_p99_cm']:.2f} | {ro} |")
     return "\n".join(lines) + "\n"
 
 
@@ -175,11 +213,6 @@ def main(argv=None):
     ap.add_argument("--markdown", type=Path)
     args = ap.parse_args(argv)
     results = [evaluate_model(m, args.data) for m in args.models]
-    done = set()
-    for r, m in zip(results, args.models):
-        if r["rig"] not in done:
-            r["hold"] = evaluate_hold(args.data, m)
-            done.add(r["rig"])
     md = markdown(results)
     print(md)
     if args.json:

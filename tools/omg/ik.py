@@ -57,6 +57,13 @@ def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec().reshape(shape + (3,))
 
 
+def rot6_to_matrix(t6: np.ndarray) -> np.ndarray:
+    """(..., 6) forward/up vectors (a frame's target rotations) -> (..., 3, 3) rotations
+    with columns side, up, forward."""
+    fw, up = t6[..., :3], t6[..., 3:]
+    return np.stack([np.cross(up, fw), up, fw], axis=-1)
+
+
 def _clamp_norm(x: np.ndarray, limit: float) -> np.ndarray:
     n = np.linalg.norm(x, axis=-1, keepdims=True)
     return x * np.minimum(1.0, limit / np.maximum(n, 1e-12))

@@ -63,6 +63,15 @@ class NumpyOMG:
         self.std = self.t["norm.std"]
         self.a_ph = self.cfg["phase_update"]["a"]
         self.variant = self.cfg["variant"]
+        self.dof_form = self.cfg.get("pose_form", "absolute") == "dof_velocity"
+        if self.dof_form:
+            c = self.cfg["controller"]
+            self.fps, self.a_max = float(c["fps"]), float(c["a_max"])
+            self.rig = skeleton_rig(c["skeleton"])
+            self.dof_mean, self.dof_std = self.t["norm.dof_mean"], self.t["norm.dof_std"]
+            np_, nd = self.sl["phase"].stop - self.sl["phase"].start, self.rig.n_dofs
+            nc = self.sl["cost"].stop - self.sl["cost"].start
+            self.out = dict(phase=slice(0, np_), u=slice(np_, np_ + nd), cost=slice(np_ + nd, np_ + nd + nc))
 
     def mlp(self, name, x):
         for i in range(3):
@@ -92,9 +101,13 @@ class NumpyOMG:
             h = np.einsum("bk,bko->bo", a, he)
             if l < 2:
                 h = elu(h)
+        phase = self.a_ph * h[:, self.osl["dphase"]] + (1 - self.a_ph) * x[:, sl["phase"]]
+        pose = self.mlp("dec", h[:, self.osl["z"]])
+        if self.dof_form:
+            return np.concatenate([phase, pose, h[:, self.osl["cost"]]], axis=1)
         y = np.empty_like(x)
-        y[:, sl["phase"]] = self.a_ph * h[:, self.osl["dphase"]] + (1 - self.a_ph) * x[:, sl["phase"]]
-        y[:, sl["pose"]] = self.mlp("dec", h[:, self.osl["z"]])
+        y[:, sl["phase"]] = phase
+        y[:, sl["pose"]] = pose
         y[:, sl["cost"]] = h[:, self.osl["cost"]]
         y[:, sl["target"]] = x[:, sl["target"]]
         return y
@@ -106,8 +119,60 @@ class NumpyOMG:
         return x * self.std + self.mean
 
     def step(self, raw):
-        """One frame in raw units: X (B, n) -> Y (B, n)."""
-        return self.denormalise(self.step_norm(self.normalise(np.asarray(raw, self.dtype))))
+        """One frame in raw units: X (B, n) -> Y (B, n); a joint-velocity model: its raw
+        network output [phase', u, cost'] (B, n_out)."""
+        y = self.step_norm(self.normalise(np.asarray(raw, self.dtype)))
+        if not self.dof_form:
+            return self.denormalise(y)
+        ph, co = self.sl["phase"], self.sl["cost"]
+        return np.concatenate([y[:, self.out["phase"]] * self.std[ph] + self.mean[ph],
+                               y[:, self.out["u"]] * self.dof_std + self.dof_mean,
+                               y[:, self.out["cost"]] * self.std[co] + self.mean[co]], axis=1)
+
+    def limit(self, q, v, w):
+        """The controller's limit stage (docs/omg-joint-velocity.md step 2)."""
+        dt, a = 1.0 / self.fps, self.a_max
+        h = 0.5 * a * dt
+
+        def stop(room):
+            return np.sqrt(h * h + 2 * a * np.maximum(room, 0.0)) - h
+
+        lo, hi = self.rig.lower, self.rig.upper
+        w = np.minimum(w, stop(hi - q))
+        w = np.maximum(w, -stop(q - lo))
+        v1 = v + np.clip(w - v, -a * dt, a * dt)
+        q1 = np.clip(q + v1 * dt, lo, hi)
+        return q1, (q1 - q) / dt
+
+    def rollout_dof(self, first, q0, v0, targets, mode="grounded"):
+        """The controller loop of a joint-velocity model: frames (B, T, n) and joint angles
+        (B, T, D) from ``first`` (B, n) with state (q0, v0), frame t getting targets[:, t]."""
+        from .rigs import forward_kinematics
+
+        first = np.asarray(first, self.dtype)
+        B, T = targets.shape[:2]
+        n = first.shape[1]
+        sl = self.sl
+        frames = np.empty((B, T, n), self.dtype)
+        qs = np.empty((B, T, self.rig.n_dofs), self.dtype)
+        frames[:, 0], qs[:, 0] = first, q0
+        x, q, v = first, np.asarray(q0, self.dtype), np.asarray(v0, self.dtype)
+        dt = 1.0 / self.fps
+        for t in range(1, T):
+            o = self.step(x)
+            q, v = self.limit(q, v, o[:, self.out["u"]] / dt)
+            P, G = forward_kinematics(self.rig, q)
+            y = np.empty_like(x)
+            y[:, sl["phase"]] = o[:, self.out["phase"]]
+            J = P.shape[1]
+            y[:, sl["pos"]] = P.reshape(B, 3 * J)
+            y[:, sl["rot"]] = np.concatenate([G[..., :, 2], G[..., :, 1]], axis=-1).reshape(B, 6 * J)
+            y[:, sl["vel"]] = (P.reshape(B, 3 * J) - x[:, sl["pos"]]) * self.fps
+            y[:, sl["target"]] = targets[:, t]
+            y[:, sl["cost"]] = costs_from_frame(y, self.cfg) if mode == "grounded" else o[:, self.out["cost"]]
+            frames[:, t], qs[:, t] = y, q
+            x = y
+        return frames, qs
 
     def rollout(self, clips, mode=None):
         """Autoregressive rollout driven by the clips' targets: (B, T, n) raw -> (B, T, n).
@@ -130,6 +195,21 @@ class NumpyOMG:
             out[:, t] = y
             x = y
         return out
+
+
+def skeleton_rig(sk: dict):
+    """A :class:`tools.omg.rigs.Rig` (for its forward kinematics) from a config's
+    ``controller.skeleton``."""
+    from .rigs import Rig
+
+    J = len(sk["parents"])
+    return Rig(name="skeleton", joint_names=[str(j) for j in range(J)], parents=np.asarray(sk["parents"]),
+               offsets=np.asarray(sk["offsets"], dtype=np.float64),
+               dof_joint=np.asarray([d["joint"] for d in sk["dofs"]]),
+               dof_axis=np.asarray([d["axis"] for d in sk["dofs"]]),
+               lower=np.asarray([d["lower"] for d in sk["dofs"]], dtype=np.float64),
+               upper=np.asarray([d["upper"] for d in sk["dofs"]], dtype=np.float64),
+               dof_weight=np.ones(len(sk["dofs"])), key_joints=np.zeros(0, dtype=np.int64))
 
 
 def _normalised(v):

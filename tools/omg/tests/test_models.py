@@ -15,8 +15,10 @@ IDS = [p.name for p in MODEL_DIRS]
 
 
 def test_models_present():
-    # issue 10's committed set: tiny FE, small FE and small RBF-CAT on R1, the Frozen transfer on R4
-    assert {"tiny_fe_r1", "small_fe_r1", "small_rbfcat_r1", "tiny_fe_r4_frozen"} <= set(IDS)
+    # the committed set: tiny FE, small FE, small RBF-CAT and tiny FS on R1, the Frozen and Raw
+    # transfers on R4; all joint-velocity models (docs/omg-joint-velocity.md)
+    assert {"tiny_fe_r1", "small_fe_r1", "small_rbfcat_r1", "tiny_fs_r1", "tiny_fe_r4_frozen",
+            "tiny_fe_r4_raw"} <= set(IDS)
 
 
 @pytest.fixture(scope="module", params=MODEL_DIRS, ids=IDS)
@@ -49,6 +51,9 @@ def test_config_slices_sizes(model):
     L = sz["latent"]
     o = cfg["out_slices"]
     assert o["dphase"] == [0, 2 * K] and o["z"] == [2 * K, 2 * K + L] and o["cost"] == [2 * K + L, 2 * K + L + 6 * K]
+    assert cfg["pose_form"] == "dof_velocity"
+    D = sz["dof"]
+    assert o["u"] == [2 * K, 2 * K + D] and len(cfg["controller"]["skeleton"]["dofs"]) == D
     assert cfg["phase_update"]["a"] == 0.9
     assert cfg["mode"] in ("grounded", "faithful")
 
@@ -64,7 +69,7 @@ def test_tensor_shapes_params_macs(model):
     cols = cfg.get("encoder_columns")
     enc_in = 12 * J if cols is None else len(cols)
     assert sz.get("enc_in", 12 * J) == enc_in
-    dims = dict(enc=(enc_in, h, h, L), dec=(L, h, h, 12 * J), cost=(15 * K, Hc, Hc, Hc), gate=(2 * K, G, G, k))
+    dims = dict(enc=(enc_in, h, h, L), dec=(L, h, h, sz["dof"]), cost=(15 * K, Hc, Hc, Hc), gate=(2 * K, G, G, k))
     params = macs = 0
     for name, d in dims.items():
         for i in range(3):
@@ -96,11 +101,25 @@ def test_normalisation(model):
     assert np.all(m.std > 0)
     np.testing.assert_allclose(m.mean, cfg["normalisation"]["mean"], rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(m.std, cfg["normalisation"]["std"], rtol=1e-6, atol=1e-7)
+    D = cfg["sizes"]["dof"]
+    assert m.dof_mean.shape == (D,) and np.all(m.dof_std > 0)
+    np.testing.assert_allclose(m.dof_std, cfg["normalisation"]["dof_std"], rtol=1e-6, atol=1e-9)
+
+
+def test_skeleton_is_the_rigs(model):
+    """The controller's skeleton is the generator's rig (rig.json beside the model)."""
+    m, d = model
+    rig = json.loads((d / "rig.json").read_text())
+    sk = m.cfg["controller"]["skeleton"]
+    assert sk["parents"] == rig["parents"] and sk["offsets"] == rig["rest_offsets"]
+    assert [(rig["joints"][x["joint"]], "xyz"[x["axis"]], x["lower"], x["upper"]) for x in sk["dofs"]] == [
+        (x["joint"], x["axis"], x["lower"], x["upper"]) for x in rig["dofs"]]
+    assert m.cfg["controller"]["fps"] == 60 and m.cfg["controller"]["a_max"] == 5.0
 
 
 def _refs(d):
     with np.load(d / "references.npz") as z:
-        return {k: z[k] for k in ("inputs", "one_step", "rollout_targets", "rollout_grounded")}
+        return {k: z[k] for k in z.files}
 
 
 # The references are the stored weights run in float64 by PyTorch, saved as float32
@@ -112,7 +131,7 @@ def test_one_step_matches_reference(model, dtype, rtol, atol):
     m = NumpyOMG(d, dtype=dtype)
     r = _refs(d)
     x = r["inputs"]
-    y = m.step(x.reshape(-1, x.shape[-1])).reshape(x.shape)
+    y = m.step(x.reshape(-1, x.shape[-1])).reshape(x.shape[:2] + (-1,))
     np.testing.assert_allclose(y, r["one_step"], rtol=rtol, atol=atol)
 
 
@@ -125,12 +144,18 @@ def test_grounded_rollout_matches_reference(model, dtype, rtol, atol):
     r = _refs(d)
     ro = r["rollout_grounded"]
     assert ro.shape[1] == 300
-    clips = np.zeros(ro.shape)
-    clips[:, 0] = r["inputs"][:, 0]
-    clips[:, :, slice(*m.cfg["slices"]["target"])] = r["rollout_targets"]
-    out = m.rollout(clips, mode="grounded")
+    out, qs = m.rollout_dof(r["inputs"][:, 0], r["rollout_q0"], r["rollout_v0"], r["rollout_targets"])
     np.testing.assert_array_equal(out[:, 0], ro[:, 0])
     np.testing.assert_allclose(out, ro, rtol=rtol, atol=atol)
+    np.testing.assert_allclose(qs, r["rollout_dof"], rtol=rtol, atol=atol)
+    # forward kinematics keeps every bone and every joint limit
+    from tools.omg.metrics import bone_lengths, rest_bone_lengths
+
+    sk = m.cfg["controller"]["skeleton"]
+    pos = out[:, :, slice(*m.cfg["slices"]["pos"])].reshape(out.shape[0], 300, -1, 3)
+    err = np.abs(bone_lengths(pos, sk["parents"]) - rest_bone_lengths(sk["offsets"], sk["parents"]))
+    assert err.max() < (1e-9 if dtype == np.float64 else 1e-5)
+    assert (qs >= m.rig.lower - 1e-12).all() and (qs <= m.rig.upper + 1e-12).all()
     # the rollout's cost block is the recomputed one (from float32-stored frames here: acos
     # near 0 amplifies a 1e-7 difference of a dot product to about 1e-4)
     np.testing.assert_allclose(costs_from_frame(ro[:, 1:].astype(np.float64), m.cfg),

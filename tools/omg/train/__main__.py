@@ -69,6 +69,22 @@ def parse(argv=None):
     a.add_argument("--weight-noise", type=float, default=0.0,
                    help="int8 steps of uniform noise (peak to peak) on every weight matrix in each "
                    "training step of the OMG stage (0: off); see models/omg/README.md")
+    a.add_argument("--pose-form", default="dof_velocity", choices=["dof_velocity", "absolute"],
+                   help="what the decoder outputs (docs/omg-joint-velocity.md): the joints' desired "
+                   "velocities, trained by teacher forcing then DAgger on the data's IK (default), or "
+                   "the absolute pose with scheduled autoregression (the thesis's recipe)")
+    a.add_argument("--tf-steps", type=int, default=1500, help="dof_velocity: teacher-forced optimiser steps")
+    a.add_argument("--dagger", type=int, default=6, help="dof_velocity: DAgger iterations")
+    a.add_argument("--dagger-steps", type=int, default=1500, help="dof_velocity: optimiser steps after each rollout")
+    a.add_argument("--keep", type=int, default=4, help="dof_velocity: DAgger rollouts kept for training")
+    a.add_argument("--lr-end", type=float, default=1e-4,
+                   help="dof_velocity: learning rate after the last DAgger iteration (geometric decay)")
+    a.add_argument("--train-batch", type=int, default=512, help="dof_velocity: frames per batch")
+    a.add_argument("--rollout-labels", default="ik", choices=["ik", "data"],
+                   help="dof_velocity: label the frames the model visits with the IK's velocity there "
+                   "(DAgger) or with the data's label of the same frame")
+    a.add_argument("--pos-loss", type=float, default=1.0,
+                   help="dof_velocity: weight of the joint positions one frame on (1 cm units)")
     a.add_argument("--out", required=True)
     return a.parse_args(argv)
 
@@ -84,6 +100,10 @@ def load_shared(model: OMG, tensors: dict):
 
 def main(argv=None):
     args = parse(argv)
+    if args.pose_form == "dof_velocity":
+        from .dof_main import main_dof
+
+        return main_dof(args, argv)
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     np.random.seed(args.seed)

@@ -99,10 +99,18 @@ class AE(nn.Module):
 
 
 class OMG(nn.Module):
-    def __init__(self, slices, variant="FE", size="tiny", k=4, enc_cols=None, **over):
+    def __init__(self, slices, variant="FE", size="tiny", k=4, enc_cols=None, pose_form="absolute", dof=0,
+                 **over):
         """``enc_cols``: FS only, the model-vector columns the encoder sees (selected joints'
-        pos, rot, vel); the decoder still outputs the full pose."""
+        pos, rot, vel); the decoder still outputs the full pose. ``pose_form``
+        "dof_velocity": the decoder outputs the ``dof`` joints' desired velocities instead of
+        the pose (docs/omg-joint-velocity.md), and :meth:`forward` returns the network
+        output ``[phase', u, cost']`` (normalised) instead of the frame ``Y``."""
         super().__init__()
+        if pose_form not in ("absolute", "dof_velocity"):
+            raise ValueError(f"pose_form {pose_form!r}")
+        self.pose_form = pose_form
+        self.dof = dof
         self.enc_cols = None if enc_cols is None else torch.as_tensor(list(enc_cols), dtype=torch.long)
         sz = dict(SIZES[size], **over)
         self.sz, self.k, self.variant = sz, k, variant
@@ -113,6 +121,8 @@ class OMG(nn.Module):
         n_target = self.sl["target"].stop - self.sl["target"].start
         L, Hc = sz["latent"], sz["cost_hidden"]
         self.ae = AE(n_pose, sz["ae_hidden"], L)
+        if pose_form == "dof_velocity":
+            self.ae.dec = MLP3(L, sz["ae_hidden"], dof)
         if self.enc_cols is not None:
             self.ae.enc = MLP3(len(self.enc_cols), sz["ae_hidden"], L)
         self.cost = MLP3(n_cost + n_target, Hc, Hc)
@@ -128,6 +138,12 @@ class OMG(nn.Module):
             "z": (n_phase, n_phase + L),
             "cost": (n_phase + L, self.dout),
         }
+        # dof_velocity: where the blocks are in forward()'s output [phase', u, cost']
+        self.out_slices_dof = {
+            "phase": slice(0, n_phase),
+            "u": slice(n_phase, n_phase + dof),
+            "cost": slice(n_phase + dof, n_phase + dof + n_cost),
+        }
 
     def enc_input(self, x):
         return x[:, self.enc_cols] if self.enc_cols is not None else x[:, self.sl["pose"]]
@@ -142,6 +158,8 @@ class OMG(nn.Module):
         o = {n: h[:, a:b] for n, (a, b) in self.out_slices.items()}
         phase = PHASE_A * o["dphase"] + (1 - PHASE_A) * x[:, sl["phase"]]
         pose = self.ae.dec(o["z"])
+        if self.pose_form == "dof_velocity":
+            return torch.cat([phase, pose, o["cost"]], dim=1)
         return torch.cat([phase, pose, o["cost"], x[:, sl["target"]]], dim=1)
 
     def extra_loss(self):

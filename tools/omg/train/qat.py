@@ -48,7 +48,7 @@ from safetensors.torch import load_file  # noqa: E402
 
 from .core import Frame, grid_round, load_rig, model_slices, open_log, train_omg  # noqa: E402
 from .proc import EXPORTER, QAT_LR, run  # noqa: E402
-from .references import load_model, read_references, save_weights, write_references  # noqa: E402
+from .references import load_model, read_references, save_weights, write_references, write_references_dof  # noqa: E402
 
 QMAX = {8: 127.0, 16: 32767.0}
 # A snapped weight is k * u_j / s_i stored as float32: snapping it again may move it by
@@ -79,6 +79,15 @@ def parse(argv=None):
     a.add_argument("--max-snaps", type=int, default=6)
     a.add_argument("--seed", type=int, default=0)
     a.add_argument("--threads", type=int, default=1, help="torch.set_num_threads (default 1)")
+    # joint-velocity models (docs/omg-joint-velocity.md): DAgger fine-tuning on the grid
+    a.add_argument("--dagger", type=int, default=3, help="dof_velocity: DAgger iterations on the grid")
+    a.add_argument("--dagger-steps", type=int, default=1000, help="dof_velocity: steps per iteration")
+    a.add_argument("--tf-steps", type=int, default=0, help="dof_velocity: teacher-forced steps first")
+    a.add_argument("--lr-end", type=float, default=2e-5, help="dof_velocity: last learning rate")
+    a.add_argument("--keep", type=int, default=3, help="dof_velocity: rollouts kept")
+    a.add_argument("--train-batch", type=int, default=512, help="dof_velocity: frames per batch")
+    a.add_argument("--pos-loss", type=float, default=1.0, help="dof_velocity: joint-position loss weight")
+    a.add_argument("--rollout-labels", default="ik", choices=["ik", "data"])
     return a.parse_args(argv)
 
 
@@ -153,6 +162,37 @@ def main(argv=None):
     grid = json.loads(grid_path.read_text())["column_scales"]
     qmax = QMAX[args.weight_bits]
 
+    params = None
+    if args.freeze_shared:
+        for m in model.shared_modules():
+            m.requires_grad_(False)
+        params = list(model.ae.parameters())
+    dof_form = cfg.get("pose_form") == "dof_velocity"
+    if dof_form:
+        from .dof_main import qat_dof
+
+        args.batch = args.train_batch
+        log(f"{src} -> {out}: {args.dagger} DAgger iterations of int{args.weight_bits} QAT")
+        t0 = time.time()
+        hist = qat_dof(model, tensors, cfg, args.data, args, lambda: grid_round(model, grid, qmax), gen, log,
+                       params)
+        t_train = time.time() - t0
+        train = None
+    else:
+        hist, t_train, train = qat_absolute(args, cfg, tensors, model, grid, qmax, gen, log, params)
+    log(f"QAT {t_train:.1f} s")
+
+    stored = model.export_tensors()
+    for k in ("norm.mean", "norm.std", "norm.dof_mean", "norm.dof_std"):
+        if k in tensors:
+            stored[k] = tensors[k].float()
+    save_weights(stored, out / "model.safetensors", "float32")
+    changes = snap_until_fixed(args, out, log)
+    finish(args, argv, cfg, src, out, final, train, t_train, changes, hist, t_start, log, dof_form)
+
+
+def qat_absolute(args, cfg, tensors, model, grid, qmax, gen, log, params):
+    """The absolute-pose models' QAT: the OMG stage (``core.train_omg``) on the grid."""
     lay, sp = load_rig(args.data, cfg["rig"])
     sl = model_slices(lay)
     train = sp["train"]
@@ -166,12 +206,7 @@ def main(argv=None):
     fr = Frame(sl, mean, std, lay["key_joint_indices"], lay["joints"], cfg["mode"])
     train_n = (torch.from_numpy(train) - fr.mean) / fr.std
     val_n = (torch.from_numpy(sp["val"]) - fr.mean) / fr.std
-    params = None
-    if args.freeze_shared:
-        for m in model.shared_modules():
-            m.requires_grad_(False)
-        params = list(model.ae.parameters())
-    log(f"{src} -> {out}: {train.shape[0]} training clips, {args.epochs} epochs of int{args.weight_bits} QAT")
+    log(f"{args.source} -> {args.out}: {train.shape[0]} training clips, {args.epochs} epochs of int{args.weight_bits} QAT")
 
     train_args = argparse.Namespace(
         epochs=args.epochs, lr=args.lr, lr_step=args.lr_step, batch=args.batch,
@@ -182,13 +217,12 @@ def main(argv=None):
     hist = train_omg(model, fr, train_n, val_n, train_args, gen, log, params,
                      perturb=lambda: grid_round(model, grid, qmax))
     t_train = time.time() - t0
-    log(f"QAT {t_train:.1f} s")
+    return hist, t_train, train
 
-    stored = model.export_tensors()
-    stored["norm.mean"], stored["norm.std"] = tensors["norm.mean"].float(), tensors["norm.std"].float()
-    save_weights(stored, out / "model.safetensors", "float32")
-    changes = snap_until_fixed(args, out, log)
 
+def finish(args, argv, cfg, src, out, final, train, t_train, changes, hist, t_start, log, dof_form):
+    """The config's ``qat`` record, the references of the snapped weights, and the move into
+    ``--out``."""
     cmd = "python3 -m tools.omg.train.qat " + " ".join(sys.argv[1:] if argv is None else argv)
     cfg["weights_dtype"] = "float32"
     cfg["qat"] = dict(
@@ -198,13 +232,14 @@ def main(argv=None):
         epochs=args.epochs,
         lr=args.lr,
         lr_step=args.lr_step,
-        train_clips=int(train.shape[0]),
+        train_clips=None if train is None else int(train.shape[0]),
         frozen_shared=args.freeze_shared,
         motion_from=args.motion_from,
         feedback_noise=args.feedback_noise,
         qat_s=round(t_train, 1),
         snaps=changes,
-        final_val_one_step=hist[-1]["val_one_step"] if hist else None,
+        final_val_one_step=hist[-1].get("val_one_step") if hist else None,
+        dagger=dict(iterations=args.dagger, steps=args.dagger_steps, lr_end=args.lr_end) if dof_form else None,
         torch=torch.__version__,
         python=platform.python_version(),
         rule="weights and biases stored as the int8 blob computes them (exporter omg --snap-out, "
@@ -213,9 +248,13 @@ def main(argv=None):
     cfg["qat"]["total_wall_s"] = round(time.time() - t_start, 1)
     (out / "config.json").write_text(json.dumps(cfg, indent=1) + "\n")
     (out / "qat_history.json").write_text(json.dumps(hist) + "\n")
-    ref = read_references(src)
-    write_references(out, ref["inputs"], ref["rollout_targets"])
-    grid_path.unlink()
+    if dof_form:
+        with np.load(src / "references.npz") as z:
+            write_references_dof(out, z["inputs"], z["rollout_targets"], z["rollout_q0"], z["rollout_v0"])
+    else:
+        ref = read_references(src)
+        write_references(out, ref["inputs"], ref["rollout_targets"])
+    (out / "grid.json").unlink(missing_ok=True)
     final.mkdir(parents=True, exist_ok=True)
     for f in sorted(out.iterdir()):
         os.replace(f, final / f.name)

@@ -74,7 +74,8 @@ def load_model(model_dir: Path, dtype=torch.float64) -> tuple[OMG, Frame, dict]:
     args = cfg["training"]["args"]
     slices = {k: tuple(v) for k, v in cfg["slices"].items()}
     experts = cfg["sizes"]["experts"]
-    model = OMG(slices, variant=cfg["variant"], size=args["size"], k=experts, enc_cols=cfg.get("encoder_columns"))
+    model = OMG(slices, variant=cfg["variant"], size=args["size"], k=experts, enc_cols=cfg.get("encoder_columns"),
+                pose_form=cfg.get("pose_form", "absolute"), dof=cfg["sizes"].get("dof", 0))
     tensors = load_file(str(model_dir / "model.safetensors"))
     live = model.named_tensors()
     missing = sorted(set(live) - set(tensors))
@@ -98,6 +99,61 @@ def load_model(model_dir: Path, dtype=torch.float64) -> tuple[OMG, Frame, dict]:
 
 
 ARRAYS = ("inputs", "rollout_targets", "one_step", "rollout_grounded")
+DOF_ARRAYS = ARRAYS + ("rollout_q0", "rollout_v0", "rollout_dof")
+
+
+def dof_loop(model_dir: Path, cfg: dict, tensors: dict, dtype=torch.float64):
+    """The controller loop of a joint-velocity model (:class:`.loop.DofLoop`) from its
+    directory, in ``dtype``."""
+    from .fk import RigFK
+    from .loop import DofLoop
+
+    c = cfg["controller"]
+    sk = c["skeleton"]
+    rig = dict(parents=sk["parents"], rest_offsets=sk["offsets"], joints=[str(j) for j in range(len(sk["parents"]))],
+               dofs=[dict(joint=str(d["joint"]), axis="xyz"[d["axis"]], lower=d["lower"], upper=d["upper"])
+                     for d in sk["dofs"]])
+    fk = RigFK(rig, dtype=dtype)
+    return DofLoop(cfg["slices"], tensors["norm.mean"].to(dtype), tensors["norm.std"].to(dtype),
+                   tensors["norm.dof_mean"].to(dtype), tensors["norm.dof_std"].to(dtype),
+                   cfg["key_joint_indices"], fk, c["a_max"], c["fps"], "grounded")
+
+
+def write_references_dof(model_dir: Path, inputs=None, targets=None, q0=None, v0=None):
+    """``references.npz`` of a joint-velocity model (docs/omg-joint-velocity.md): one-step
+    network outputs and the controller loop's rollouts from (inputs[:, 0], q0, v0), by
+    default the directory's own; float64, saved as float32."""
+    if inputs is None:
+        with np.load(model_dir / "references.npz") as z:
+            inputs, targets, q0, v0 = z["inputs"], z["rollout_targets"], z["rollout_q0"], z["rollout_v0"]
+    inputs, targets, q0, v0 = (np.asarray(a, dtype=np.float32) for a in (inputs, targets, q0, v0))
+    model, _, cfg = load_model(model_dir)
+    tensors = load_file(str(model_dir / "model.safetensors"))
+    loop = dof_loop(model_dir, cfg, tensors)
+    x = torch.from_numpy(inputs.astype(np.float64))
+    clips, frames, n = x.shape
+    with torch.no_grad():
+        o = model(loop.normalise(x.reshape(-1, n)))
+        ph, co = loop.sl["phase"], loop.sl["cost"]
+        raw = torch.cat([o[:, loop.out["phase"]] * loop.std[ph] + loop.mean[ph], loop.u_raw(o),
+                         o[:, loop.out["cost"]] * loop.std[co] + loop.mean[co]], 1)
+        one = raw.reshape(clips, frames, -1)
+        q0t = torch.from_numpy(q0.astype(np.float64))
+        roll, qs = loop.rollout(model, x[:, 0], q0t, torch.from_numpy(v0.astype(np.float64)),
+                                torch.from_numpy(targets.astype(np.float64)), record_q=True)
+    arrays = dict(
+        inputs=inputs,
+        rollout_targets=targets,
+        one_step=one.numpy().astype(np.float32),
+        rollout_grounded=roll.numpy().astype(np.float32),
+        rollout_q0=q0,
+        rollout_v0=v0,
+        rollout_dof=qs.numpy().astype(np.float32),
+    )
+    tmp = model_dir / "references.tmp.npz"
+    np.savez_compressed(tmp, **arrays)
+    os.replace(tmp, model_dir / "references.npz")
+    return one.numpy(), roll.numpy()
 
 
 def read_references(model_dir: Path) -> dict:
@@ -169,7 +225,9 @@ def main(argv=None) -> None:
         if args.weights:
             worst = convert_weights(m, args.weights)
             print(f"{m}: layer weights stored as {args.weights} (largest change {worst:.2e} of a tensor's largest magnitude)")
-        one, roll = write_references(m)
+        cfg = json.loads((m / "config.json").read_text())
+        write = write_references_dof if cfg.get("pose_form") == "dof_velocity" else write_references
+        one, roll = write(m)
         print(f"{m}: wrote references.npz: one_step {one.shape}, rollout_grounded {roll.shape} (float64 PyTorch)")
 
 
