@@ -41,13 +41,34 @@ pub enum Error {
         /// whole target block); 255: no such key joint.
         field: u8,
     },
-    /// A reaching layout does not fit itself or the network
-    /// ([`crate::reach::ReachLayout::check`]).
+    /// A reaching layout does not fit itself, the network or the
+    /// skeleton ([`crate::reach::ReachLayout::check`],
+    /// [`crate::reach::Reach::with_dofs`]).
     BadLayout {
         /// The failed check: 0 frame width vs network inputs, 1 no key
         /// joints, 2 positions, 3 rotations, 4 costs, 5 targets, 6 key
-        /// joint indices, 7 network output blocks.
+        /// joint indices, 7 network output blocks; the joint-velocity form:
+        /// 8 its `u` block (within the outputs, one value per DOF), 9 its
+        /// velocity block (3 per joint), 10 the pose entry of the output
+        /// blocks (empty in this form), 11 the skeleton's joints vs the
+        /// frame's; 12 the constructor does not build the layout's pose form
+        /// (`Reach::new`: absolute, `Reach::with_dofs`: joint velocity).
         reason: u8,
+    },
+    /// A skeleton refused by [`crate::reach::Skeleton::new`].
+    BadSkeleton {
+        /// The check that failed.
+        check: SkeletonCheck,
+        /// The joint (or DOF, for the DOF checks) it failed on; the
+        /// capacity for the two capacity checks; 0 for the rates.
+        index: u16,
+    },
+    /// A joint-velocity reaching controller's start state (joint angles
+    /// `q0`, velocities `v0`) holds NaN or an infinity.
+    BadStart {
+        /// Index of the first offending value: `0..D` in `q0`, `D..2D` in
+        /// `v0`.
+        index: u16,
     },
     /// Frames wider than the controller's buffers.
     TooWide {
@@ -68,6 +89,52 @@ pub enum Error {
         /// The number.
         value: u32,
     },
+}
+
+/// Which check refused a skeleton ([`Error::BadSkeleton`]).
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum SkeletonCheck {
+    /// More joints than [`crate::reach::MAX_JOINTS`].
+    TooManyJoints,
+    /// More DOFs than [`crate::reach::MAX_DOFS`].
+    TooManyDofs,
+    /// A joint's parent does not come before it.
+    Parent,
+    /// A rest offset coordinate is not finite or beyond
+    /// [`crate::skeleton::MAX_OFFSET_M`].
+    Offset,
+    /// A DOF names no joint of the skeleton.
+    DofJoint,
+    /// A DOF's axis is not 0 (x), 1 (y) or 2 (z).
+    DofAxis,
+    /// A DOF's limits are not finite, or `lower > upper`.
+    DofLimits,
+    /// A second DOF on the same joint and axis.
+    DuplicateDof,
+    /// The frame rate is not finite and positive.
+    Fps,
+    /// The acceleration limit is not finite and positive.
+    AMax,
+}
+
+impl SkeletonCheck {
+    /// What the check requires, in words.
+    pub fn describe(self) -> &'static str {
+        match self {
+            SkeletonCheck::TooManyJoints => "at most 64 joints",
+            SkeletonCheck::TooManyDofs => "at most 64 DOFs",
+            SkeletonCheck::Parent => "a joint's parent comes before it",
+            SkeletonCheck::Offset => "offsets finite and within 100 m",
+            SkeletonCheck::DofJoint => "a DOF names a joint of the skeleton",
+            SkeletonCheck::DofAxis => "a DOF's axis is 0, 1 or 2",
+            SkeletonCheck::DofLimits => "a DOF's limits finite, lower <= upper",
+            SkeletonCheck::DuplicateDof => "one DOF per joint and axis",
+            SkeletonCheck::Fps => "fps finite and positive",
+            SkeletonCheck::AMax => "a_max finite and positive",
+        }
+    }
 }
 
 /// Result with the controller's [`Error`].
@@ -98,6 +165,14 @@ impl fmt::Display for Error {
             }
             Error::BadLayout { reason } => {
                 write!(f, "reaching layout does not fit the network (check {reason})")
+            }
+            Error::BadSkeleton { check, index } => write!(
+                f,
+                "skeleton refused at joint or DOF {index}: {} ({check:?})",
+                check.describe()
+            ),
+            Error::BadStart { index } => {
+                write!(f, "reaching start state value {index} is NaN or infinite")
             }
             Error::TooWide { width, capacity } => write!(
                 f,

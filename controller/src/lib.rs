@@ -37,6 +37,7 @@ mod pfnn;
 mod pose;
 pub mod reach;
 mod real;
+pub mod skeleton;
 pub mod trajectory;
 
 pub use command::{field, Command, Gait, GaitWeights, MAX_SPEED, MIN_FACING};
@@ -44,9 +45,9 @@ pub use deadline::{
     Deadline, DeadlineConfig, FrameAction, FrameBudget, FrameOutcome, OverrunPolicy, TickSource,
     TimedFrame,
 };
-pub use error::{Error, Result};
+pub use error::{Error, Result, SkeletonCheck};
 pub use locomotion::{rates, Locomotion, Network};
 pub use pfnn::{phase_from_cycles, PfnnController};
 pub use pose::Pose;
-pub use reach::{CostMode, Reach, ReachLayout, ReachPose, Target};
+pub use reach::{CostMode, PoseForm, Reach, ReachLayout, ReachPose, Skeleton, Target};
 pub use real::Real;

@@ -1,14 +1,23 @@
 //! OMG reaching control: targets for the key joints in, a pose out every
-//! frame (`../shared/docs/omg-spec.md` §1.4-1.5, `docs/omg.md`).
+//! frame (`../shared/docs/omg-spec.md` §1.4-1.5, `docs/omg.md`,
+//! `docs/omg-joint-velocity.md`).
 //!
 //! The state is one OMG frame `X` (phase, pose, costs, targets, in the
 //! model's raw units). Each [`Reach::step`] runs the network on `X`, places
 //! its output blocks (phase after the network's own 0.9/0.1 phase update,
-//! pose, costs) into the next frame, writes the current targets into its
-//! target block and, in [`CostMode::Grounded`], recomputes the costs from
-//! the decoded pose and those targets, so that they always agree with the
-//! targets however these move. [`CostMode::Faithful`] feeds the predicted
-//! costs back, as the thesis's loop does.
+//! costs) into the next frame, builds the pose block as the layout's
+//! [`PoseForm`] says, writes the current targets into its target block
+//! and, in [`CostMode::Grounded`], recomputes the costs from the new pose
+//! and those targets, so that they always agree with the targets however
+//! these move. [`CostMode::Faithful`] feeds the predicted costs back, as
+//! the thesis's loop does.
+//!
+//! Two pose forms: [`PoseForm::Absolute`] (the network decodes the pose
+//! block, which is copied; [`Reach::new`]) and [`PoseForm::DofVelocity`]
+//! (the network decodes a desired joint velocity `u`; the loop also holds
+//! the rig's joint angles `q` and velocities `v`, limits `u` by the joint
+//! limits and the acceleration limit, integrates `q` and rebuilds the pose
+//! by forward kinematics on the [`Skeleton`]; [`Reach::with_dofs`]).
 //!
 //! Generic over the scalar like the locomotion loop: the device runs it in
 //! `f32` over the fixed-point runtime, the host's reference in `f64` over
@@ -19,6 +28,7 @@ use core::ops::Range;
 use crate::error::{Error, Result};
 use crate::locomotion::Network;
 use crate::real::Real;
+pub use crate::skeleton::{Dof, Joint, Skeleton, MAX_DOFS, MAX_JOINTS};
 
 /// Most key joints a layout may name (the thesis uses 4: hands and feet).
 pub const MAX_KEY: usize = 8;
@@ -47,8 +57,30 @@ pub struct ReachLayout {
     /// Indices of the key joints among the joints, hands first.
     pub key_joints: heapless::Vec<u16, MAX_KEY>,
     /// `(network output range, frame range)` of the phase, pose and cost
-    /// blocks the network computes.
+    /// blocks the network computes (in [`PoseForm::DofVelocity`] the pose
+    /// entry is empty: the pose is built by FK).
     pub blocks: [(Range<usize>, Range<usize>); 3],
+    /// How the frame's pose block is made.
+    pub pose: PoseForm,
+}
+
+/// How a reaching loop makes the frame's pose block (pos, rot, vel).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum PoseForm {
+    /// The network decodes the pose block; the layout's `blocks[1]` says
+    /// where it is in the output and in the frame (the models before
+    /// joint velocities; a config without `pose_form`).
+    Absolute,
+    /// The network decodes `u`, the desired velocity of each of the
+    /// skeleton's DOFs times the frame time (radians per frame); the loop
+    /// limits it, integrates the joint angles and builds pos, rot and vel
+    /// by forward kinematics (`docs/omg-joint-velocity.md`).
+    DofVelocity {
+        /// Where `u` is in the network output (D values).
+        out: Range<usize>,
+        /// The frame's joint velocity block (3 per joint, m/s).
+        vel: Range<usize>,
+    },
 }
 
 /// What is fed back besides the network's output.
@@ -93,9 +125,17 @@ impl ReachLayout {
         self.key_joints.len()
     }
 
+    /// Joints of a frame (its position block's length / 3).
+    pub fn joints(&self) -> usize {
+        self.pos.len() / 3
+    }
+
     /// Checks the layout against itself and a network of `inputs` ->
     /// `outputs` values: every block inside its vector with the widths the
-    /// key joints imply ([`Error::BadLayout`] names which check failed).
+    /// key joints imply, and for the joint-velocity form its `u` and
+    /// velocity blocks and an empty pose entry in `blocks`
+    /// ([`Error::BadLayout`] names which check failed; the skeleton is
+    /// checked by [`Reach::with_dofs`]).
     pub fn check(&self, inputs: usize, outputs: usize) -> Result<()> {
         let k = self.key();
         let within = |r: &Range<usize>, n: usize| r.start <= r.end && r.end <= n;
@@ -111,6 +151,22 @@ impl ReachLayout {
             self.blocks
                 .iter()
                 .all(|(o, f)| within(o, outputs) && within(f, self.width) && o.len() == f.len()),
+            match &self.pose {
+                PoseForm::Absolute => true,
+                PoseForm::DofVelocity { out, .. } => within(out, outputs),
+            },
+            match &self.pose {
+                PoseForm::Absolute => true,
+                PoseForm::DofVelocity { vel, .. } => {
+                    within(vel, self.width) && vel.len() == 3 * joints
+                }
+            },
+            match &self.pose {
+                PoseForm::Absolute => true,
+                PoseForm::DofVelocity { .. } => {
+                    self.blocks[1].0.is_empty() && self.blocks[1].1.is_empty()
+                }
+            },
         ];
         match checks.iter().position(|ok| !ok) {
             None => Ok(()),
@@ -119,13 +175,24 @@ impl ReachLayout {
     }
 }
 
-/// The reaching loop's state for frames of up to `W` values.
+/// The reaching loop's state for frames of up to `W` values (and, in the
+/// joint-velocity form, the skeleton and its joint angles and velocities).
 pub struct Reach<R, const W: usize> {
     layout: ReachLayout,
     mode: CostMode,
     x: [R; W],
     out: [R; W],
     targets: [R; W],
+    dofs: Option<DofState<R>>,
+}
+
+/// The joint-velocity form's own state.
+struct DofState<R> {
+    skeleton: Skeleton<R>,
+    /// Joint angles, radians (the first D).
+    q: [R; MAX_DOFS],
+    /// Joint velocities, rad/s (the first D).
+    v: [R; MAX_DOFS],
 }
 
 /// `v` normalised; `None` when it has no direction (all zero, or not
@@ -200,19 +267,41 @@ pub fn grounded_costs<R: Real>(layout: &ReachLayout, y: &[R], costs: &mut [R]) {
 }
 
 impl<R: Real, const W: usize> Reach<R, W> {
-    /// Bytes of the loop's state (without the network).
+    /// Bytes of the loop's state (without the network): three frames of
+    /// `W` values, the layout and, for either form (the type is one), room
+    /// for a skeleton of [`MAX_JOINTS`] joints and [`MAX_DOFS`] DOFs with
+    /// their angles and velocities (8,792 B for `Reach<f32, 512>` on the
+    /// Cortex-M4).
     pub const STATE_RAM_BYTES: usize = core::mem::size_of::<Self>();
 
-    /// Starts from `first` (a whole frame: typically the rest pose with its
-    /// targets, frame 0 of a clip), after checking `layout` against `net`
-    /// ([`Error::BadLayout`]) and that frames fit `W` values
-    /// ([`Error::TooWide`]). The targets start as `first`'s.
-    pub fn new<N: Network<R>>(
-        net: &N,
-        layout: ReachLayout,
-        mode: CostMode,
-        first: &[R],
-    ) -> Result<Self> {
+    /// A loop of no model yet: every buffer zero, a layout of nothing.
+    /// [`Reach::restart`] or [`Reach::restart_dofs`] make it a loop. A
+    /// constant, so that a `static` holding it starts in `.bss` and a
+    /// device builds its loop in place, without the state passing through
+    /// the stack ([`Reach::new`] and [`Reach::with_dofs`] return it by
+    /// value, for the host).
+    pub const IDLE: Self = Reach {
+        layout: ReachLayout {
+            width: 0,
+            pos: 0..0,
+            rot: 0..0,
+            cost: 0..0,
+            target: 0..0,
+            key_joints: heapless::Vec::new(),
+            blocks: [(0..0, 0..0), (0..0, 0..0), (0..0, 0..0)],
+            pose: PoseForm::Absolute,
+        },
+        mode: CostMode::Grounded,
+        x: [R::ZERO; W],
+        out: [R::ZERO; W],
+        targets: [R::ZERO; W],
+        dofs: None,
+    };
+
+    /// The checks both forms make: `layout` against `net`
+    /// ([`Error::BadLayout`]), frames within `W` values
+    /// ([`Error::TooWide`]), `first` a whole finite frame.
+    fn check_start<N: Network<R>>(net: &N, layout: &ReachLayout, first: &[R]) -> Result<()> {
         layout.check(net.input_dim(), net.output_dim())?;
         if layout.width > W || net.output_dim() > W {
             return Err(Error::TooWide {
@@ -229,17 +318,130 @@ impl<R: Real, const W: usize> Reach<R, W> {
         if let Some(i) = first.iter().position(|v| !v.is_finite()) {
             return Err(Error::NonFinite { index: i as u32 });
         }
-        let mut x = [R::ZERO; W];
-        x.get_mut(..first.len())
-            .ok_or(Error::BadLayout { reason: 0 })?
-            .copy_from_slice(first);
-        Ok(Reach {
-            layout,
-            mode,
-            x,
-            out: [R::ZERO; W],
-            targets: x,
-        })
+        Ok(())
+    }
+
+    /// The frames of a checked start: `first`, its targets, all else zero.
+    fn fill(&mut self, layout: ReachLayout, mode: CostMode, first: &[R]) {
+        self.x.fill(R::ZERO);
+        if let Some(x) = self.x.get_mut(..first.len()) {
+            x.copy_from_slice(first);
+        }
+        self.out.fill(R::ZERO);
+        self.targets = self.x;
+        self.layout = layout;
+        self.mode = mode;
+    }
+
+    /// Starts from `first` (a whole frame: typically the rest pose with its
+    /// targets, frame 0 of a clip), after checking `layout` against `net`
+    /// ([`Error::BadLayout`]) and that frames fit `W` values
+    /// ([`Error::TooWide`]). The targets start as `first`'s. For
+    /// [`PoseForm::Absolute`] layouts ([`Reach::with_dofs`] takes the
+    /// others; [`Error::BadLayout`] 12 here).
+    pub fn new<N: Network<R>>(
+        net: &N,
+        layout: ReachLayout,
+        mode: CostMode,
+        first: &[R],
+    ) -> Result<Self> {
+        let mut r = Self::IDLE;
+        r.restart(net, layout, mode, first)?;
+        Ok(r)
+    }
+
+    /// [`Reach::new`] in place: this loop starts again as `new` would make
+    /// it; refused with no state change.
+    pub fn restart<N: Network<R>>(
+        &mut self,
+        net: &N,
+        layout: ReachLayout,
+        mode: CostMode,
+        first: &[R],
+    ) -> Result<()> {
+        if layout.pose != PoseForm::Absolute {
+            return Err(Error::BadLayout { reason: 12 });
+        }
+        Self::check_start(net, &layout, first)?;
+        self.fill(layout, mode, first);
+        self.dofs = None;
+        Ok(())
+    }
+
+    /// The joint-velocity form ([`PoseForm::DofVelocity`]): starts from
+    /// `first` with joint angles `q0` (radians) and velocities `v0`
+    /// (rad/s), one per DOF of `skeleton`, checked as [`Reach::new`]
+    /// checks and also: the layout's `u` block one value per DOF
+    /// ([`Error::BadLayout`] 8) and the frame's joints the skeleton's (11);
+    /// an absolute layout is refused (12); `q0` and `v0` of the wrong
+    /// length ([`Error::Runtime`]) or not finite ([`Error::BadStart`]).
+    /// `q0` is taken as given (a start beyond a limit is clamped to it by
+    /// the first step). A clip starts from its frame 0 with its joint
+    /// angles and `v0 = q0 / dt` (its frame 0 is one step from rest); a
+    /// user from rest: [`rest_frame`] with `q0 = v0 = 0`.
+    pub fn with_dofs<N: Network<R>>(
+        net: &N,
+        layout: ReachLayout,
+        mode: CostMode,
+        first: &[R],
+        skeleton: Skeleton<R>,
+        q0: &[R],
+        v0: &[R],
+    ) -> Result<Self> {
+        let mut r = Self::IDLE;
+        r.restart_dofs(net, layout, mode, first, skeleton, q0, v0)?;
+        Ok(r)
+    }
+
+    /// [`Reach::with_dofs`] in place (what the device does, on its static
+    /// [`Reach::IDLE`]); refused with no state change.
+    #[allow(clippy::too_many_arguments)]
+    pub fn restart_dofs<N: Network<R>>(
+        &mut self,
+        net: &N,
+        layout: ReachLayout,
+        mode: CostMode,
+        first: &[R],
+        skeleton: Skeleton<R>,
+        q0: &[R],
+        v0: &[R],
+    ) -> Result<()> {
+        let PoseForm::DofVelocity { out, .. } = &layout.pose else {
+            return Err(Error::BadLayout { reason: 12 });
+        };
+        let d = skeleton.dofs().len();
+        if out.len() != d {
+            return Err(Error::BadLayout { reason: 8 });
+        }
+        if layout.joints() != skeleton.joints().len() {
+            return Err(Error::BadLayout { reason: 11 });
+        }
+        for s in [q0, v0] {
+            if s.len() != d {
+                return Err(Error::Runtime(phasegate::Error::LengthMismatch {
+                    expected: d as u32,
+                    found: s.len() as u32,
+                }));
+            }
+        }
+        if let Some(i) = q0.iter().chain(v0).position(|v| !v.is_finite()) {
+            return Err(Error::BadStart { index: i as u16 });
+        }
+        Self::check_start(net, &layout, first)?;
+        self.fill(layout, mode, first);
+        let state = self.dofs.get_or_insert_with(|| DofState {
+            skeleton: Skeleton::EMPTY,
+            q: [R::ZERO; MAX_DOFS],
+            v: [R::ZERO; MAX_DOFS],
+        });
+        state.skeleton = skeleton;
+        state.q.fill(R::ZERO);
+        state.v.fill(R::ZERO);
+        if let (Some(q), Some(v)) = (state.q.get_mut(..d), state.v.get_mut(..d)) {
+            q.copy_from_slice(q0);
+            v.copy_from_slice(v0);
+        }
+        Ok(())
     }
 
     /// The layout.
@@ -264,6 +466,29 @@ impl<R: Real, const W: usize> Reach<R, W> {
             positions: self.x.get(self.layout.pos.clone()).unwrap_or(&[]),
             rotations: self.x.get(self.layout.rot.clone()).unwrap_or(&[]),
         }
+    }
+
+    /// The joint angles of the current frame, radians, one per DOF
+    /// (joint-velocity form; empty for an absolute model).
+    pub fn dof(&self) -> &[R] {
+        match &self.dofs {
+            Some(s) => s.q.get(..s.skeleton.dofs().len()).unwrap_or(&[]),
+            None => &[],
+        }
+    }
+
+    /// The joint velocities, rad/s, one per DOF (joint-velocity form;
+    /// empty for an absolute model).
+    pub fn dof_velocity(&self) -> &[R] {
+        match &self.dofs {
+            Some(s) => s.v.get(..s.skeleton.dofs().len()).unwrap_or(&[]),
+            None => &[],
+        }
+    }
+
+    /// The skeleton (joint-velocity form).
+    pub fn skeleton(&self) -> Option<&Skeleton<R>> {
+        self.dofs.as_ref().map(|s| &s.skeleton)
     }
 
     /// Sets key joint `key`'s target (0 and 1 are the hands), used from the
@@ -329,8 +554,12 @@ impl<R: Real, const W: usize> Reach<R, W> {
 
     /// One frame: the network on the current frame, the next frame built
     /// from its output and the current targets, costs as the mode says.
-    /// On an error (the network's, or a non-finite output) the state is
-    /// unchanged.
+    /// In the joint-velocity form (`docs/omg-joint-velocity.md`, steps
+    /// 1-5): the phase and cost blocks from the output, `u` limited
+    /// ([`Skeleton::limit`]) into the next joint angles and velocities, the
+    /// pose block by FK of those angles (velocities against the frame's
+    /// positions before the step), then the targets and costs. On an error
+    /// (the network's, or a non-finite output) the state is unchanged.
     pub fn step<N: Network<R>>(&mut self, net: &mut N) -> Result<ReachPose<'_, R>> {
         let (n, o) = (self.layout.width, net.output_dim());
         let (x, out) = match (self.x.get(..n), self.out.get_mut(..o)) {
@@ -347,6 +576,17 @@ impl<R: Real, const W: usize> Reach<R, W> {
             if let (Some(src), Some(dst)) = (self.out.get(from.clone()), self.x.get_mut(to.clone()))
             {
                 dst.copy_from_slice(src);
+            }
+        }
+        if let (PoseForm::DofVelocity { out: u, vel }, Some(s)) =
+            (&self.layout.pose, &mut self.dofs)
+        {
+            let d = s.skeleton.dofs().len();
+            if let (Some(q), Some(v), Some(u)) =
+                (s.q.get_mut(..d), s.v.get_mut(..d), self.out.get(u.clone()))
+            {
+                s.skeleton.limit(q, v, u);
+                write_pose(&self.layout, vel, &s.skeleton, q, &mut self.x, true);
             }
         }
         let t = self.layout.target.clone();
@@ -366,6 +606,116 @@ impl<R: Real, const W: usize> Reach<R, W> {
     }
 }
 
+/// Writes the pose block of `frame` (laid out by `layout`, velocities in
+/// `vel`) from FK of `q` on `sk`: `pos` the joint positions, `rot` per
+/// joint the rotation's third column (forward) then its second (up), `vel`
+/// `(P - P_before) * fps` against the positions `frame` holds before (with
+/// `moving`; zero without).
+fn write_pose<R: Real>(
+    layout: &ReachLayout,
+    vel: &Range<usize>,
+    sk: &Skeleton<R>,
+    q: &[R],
+    frame: &mut [R],
+    moving: bool,
+) {
+    let j = sk.joints().len();
+    let (mut p, mut g) = ([R::ZERO; 3 * MAX_JOINTS], [R::ZERO; 9 * MAX_JOINTS]);
+    let (Some(p), Some(g)) = (p.get_mut(..3 * j), g.get_mut(..9 * j)) else {
+        return;
+    };
+    if sk.forward_kinematics(q, p, g).is_err() {
+        return;
+    }
+    let fps = sk.fps();
+    for (i, (pi, gi)) in p.chunks_exact(3).zip(g.chunks_exact(9)).enumerate() {
+        let (at_p, at_r, at_v) = (
+            layout.pos.start + 3 * i,
+            layout.rot.start + 6 * i,
+            vel.start + 3 * i,
+        );
+        // The third column (forward) and the second (up), row by row.
+        let cols = gi.chunks_exact(3).map(|row| match *row {
+            [_, up, fwd] => (fwd, up),
+            _ => (R::ZERO, R::ZERO),
+        });
+        for (k, (&pk, (fwd, up))) in pi.iter().zip(cols).enumerate() {
+            let before = frame.get(at_p + k).copied().unwrap_or(R::ZERO);
+            if let Some(d) = frame.get_mut(at_v + k) {
+                *d = if moving { (pk - before) * fps } else { R::ZERO };
+            }
+            for (at, v) in [(at_p + k, pk), (at_r + k, fwd), (at_r + 3 + k, up)] {
+                if let Some(d) = frame.get_mut(at) {
+                    *d = v;
+                }
+            }
+        }
+    }
+}
+
+/// The rest frame of a joint-velocity model (`layout`, `sk`) for the
+/// targets `targets` (the frame's 9K-value target block): the pose by FK
+/// of `q = 0` with zero velocities, phases 0, the targets, and the costs
+/// grounded on them. Where a user starts [`Reach::with_dofs`] from (with
+/// `q0 = v0 = 0`). Refused with [`Error::BadLayout`] when the layout is
+/// absolute (12), its checks fail (against a network of its own width
+/// and `u` block end) or its joints are not the skeleton's (11), and when
+/// `targets` or `frame` have the wrong length or a target is not finite.
+pub fn rest_frame<R: Real>(
+    layout: &ReachLayout,
+    sk: &Skeleton<R>,
+    targets: &[R],
+    frame: &mut [R],
+) -> Result<()> {
+    let PoseForm::DofVelocity { out, vel } = &layout.pose else {
+        return Err(Error::BadLayout { reason: 12 });
+    };
+    let outputs = out
+        .end
+        .max(layout.blocks.iter().map(|b| b.0.end).max().unwrap_or(0));
+    layout.check(layout.width, outputs)?;
+    if layout.joints() != sk.joints().len() {
+        return Err(Error::BadLayout { reason: 11 });
+    }
+    for (n, want) in [
+        (targets.len(), layout.target.len()),
+        (frame.len(), layout.width),
+    ] {
+        if n != want {
+            return Err(Error::Runtime(phasegate::Error::LengthMismatch {
+                expected: want as u32,
+                found: n as u32,
+            }));
+        }
+    }
+    if let Some(i) = targets.iter().position(|v| !v.is_finite()) {
+        return Err(Error::BadTarget {
+            field: u8::try_from(i).unwrap_or(u8::MAX),
+        });
+    }
+    frame.fill(R::ZERO);
+    let q = [R::ZERO; MAX_DOFS];
+    write_pose(
+        layout,
+        vel,
+        sk,
+        q.get(..sk.dofs().len()).unwrap_or(&[]),
+        frame,
+        false,
+    );
+    if let Some(d) = frame.get_mut(layout.target.clone()) {
+        d.copy_from_slice(targets);
+    }
+    let mut costs = [R::ZERO; 6 * MAX_KEY];
+    let k6 = 6 * layout.key();
+    let c = costs.get_mut(..k6).unwrap_or(&mut []);
+    grounded_costs(layout, frame, c);
+    if let Some(d) = frame.get_mut(layout.cost.clone()) {
+        d.copy_from_slice(costs.get(..k6).unwrap_or(&[]));
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -381,6 +731,7 @@ mod tests {
             target: 26..35,
             key_joints: heapless::Vec::from_slice(&[1]).unwrap(),
             blocks: [(0..2, 0..2), (2..20, 2..20), (20..26, 20..26)],
+            pose: PoseForm::Absolute,
         }
     }
 
@@ -586,5 +937,311 @@ mod tests {
             Reach::<f64, 40>::new(&net, layout(), CostMode::Grounded, &first()[..34]),
             Err(Error::Runtime(_))
         ));
+    }
+
+    // The joint-velocity form.
+
+    /// The 3-joint chain of the skeleton tests: a root at (0, 1, 0), a
+    /// child 1 m up, a grandchild 0.5 m forward; DOFs root.x, child.y,
+    /// child.z, grandchild.z, limits +-1 (grandchild.z +-0.2).
+    fn chain<R: Real>() -> Skeleton<R> {
+        let j = |parent, o: [f64; 3]| Joint {
+            parent,
+            offset: o.map(R::lit),
+        };
+        let d = |joint, axis, lim: f64| Dof {
+            joint,
+            axis,
+            lower: R::lit(-lim),
+            upper: R::lit(lim),
+        };
+        Skeleton::new(
+            [
+                j(None, [0.0, 1.0, 0.0]),
+                j(Some(0), [0.0, 1.0, 0.0]),
+                j(Some(1), [0.0, 0.0, 0.5]),
+            ],
+            [d(0, 0, 1.0), d(1, 1, 1.0), d(1, 2, 1.0), d(2, 2, 0.2)],
+            R::lit(60.0),
+            R::lit(5.0),
+        )
+        .unwrap()
+    }
+
+    /// J = 3, K = 1 (the grandchild), D = 4: frame = phase 2, pos 9,
+    /// rot 18, vel 9, cost 6, target 9 = 53 values; the network's output
+    /// `[phase 2, u 4, cost 6]` = 12.
+    fn dof_layout() -> ReachLayout {
+        ReachLayout {
+            width: 53,
+            pos: 2..11,
+            rot: 11..29,
+            cost: 38..44,
+            target: 44..53,
+            key_joints: heapless::Vec::from_slice(&[2]).unwrap(),
+            blocks: [(0..2, 0..2), (2..2, 2..2), (6..12, 38..44)],
+            pose: PoseForm::DofVelocity {
+                out: 2..6,
+                vel: 29..38,
+            },
+        }
+    }
+
+    /// Phase and costs from its input; `u` a function of the frame (the
+    /// grandchild's position) plus `bias`, so the loop closes on its own
+    /// pose.
+    struct Toward {
+        bias: [f64; 4],
+        fail: bool,
+    }
+
+    impl<R: Real> Network<R> for Toward {
+        fn input_dim(&self) -> usize {
+            53
+        }
+        fn output_dim(&self) -> usize {
+            12
+        }
+        fn predict(&mut self, _: R, x: &[R], y: &mut [R]) -> Result<()> {
+            if self.fail {
+                return Err(Error::NonFinite { index: 0 });
+            }
+            y[..2].copy_from_slice(&x[..2]);
+            // Towards the target (44..47) from the grandchild (8..11).
+            let e = |k: usize| x[44 + k] - x[8 + k];
+            let gain = R::lit(0.02);
+            // root.x lifts the hand forward, child.y swings it to +x.
+            let u = [e(2), e(0), e(1), e(0)];
+            for (d, (e, b)) in y[2..6].iter_mut().zip(u.iter().zip(self.bias)) {
+                *d = gain * *e + R::lit(b);
+            }
+            y[6..12].copy_from_slice(&x[38..44]);
+            Ok(())
+        }
+        fn mean_output(&self, y: &mut [R]) -> Result<()> {
+            y.fill(R::ZERO);
+            Ok(())
+        }
+    }
+
+    fn dof_first<R: Real>(target: [f64; 3]) -> Vec<R> {
+        let mut t = [R::ZERO; 9];
+        for k in 0..3 {
+            t[k] = R::lit(target[k]);
+        }
+        t[3 + 2] = R::ONE;
+        t[3 + 4] = R::ONE;
+        let mut f = vec![R::ZERO; 53];
+        rest_frame(&dof_layout(), &chain(), &t, &mut f).unwrap();
+        f
+    }
+
+    #[test]
+    fn the_rest_frame_is_fk_at_zero_with_its_targets_and_grounded_costs() {
+        let f: Vec<f64> = dof_first([0.3, 2.0, 0.5]);
+        assert_eq!(f[2..11], [0.0, 1.0, 0.0, 0.0, 2.0, 0.0, 0.0, 2.0, 0.5]);
+        for j in 0..3 {
+            assert_eq!(f[11 + 6 * j..17 + 6 * j], [0.0, 0.0, 1.0, 0.0, 1.0, 0.0]);
+        }
+        assert_eq!(f[29..38], [0.0; 9], "velocities");
+        assert_eq!(f[..2], [0.0; 2], "phases");
+        assert_eq!(f[44..47], [0.3, 2.0, 0.5]);
+        let c = &f[38..44];
+        assert!((c[0] - 0.3).abs() < 1e-12 && c[1].abs() < 1e-12 && c[2].abs() < 1e-12);
+        assert_eq!(c[3..], [0.0; 3]);
+        // Not a joint-velocity layout, or not its skeleton.
+        let mut out = vec![0.0; 35];
+        assert_eq!(
+            rest_frame(&layout(), &chain::<f64>(), &[0.0; 9], &mut out),
+            Err(Error::BadLayout { reason: 12 })
+        );
+        let mut l = dof_layout();
+        l.pos = 2..8;
+        assert!(rest_frame(&l, &chain::<f64>(), &[0.0; 9], &mut vec![0.0; 53]).is_err());
+    }
+
+    #[test]
+    fn a_dof_step_limits_u_integrates_and_rebuilds_the_pose_by_fk() {
+        let first: Vec<f64> = dof_first([0.3, 2.0, 0.5]);
+        let mut net = Toward {
+            bias: [0.0, 0.0, 0.0, 0.01],
+            fail: false,
+        };
+        let q0 = [0.01, -0.02, 0.0, 0.0];
+        let v0 = [0.6, -1.2, 0.0, 0.0];
+        let mut r: Reach<f64, 64> = Reach::with_dofs(
+            &net,
+            dof_layout(),
+            CostMode::Grounded,
+            &first,
+            chain(),
+            &q0,
+            &v0,
+        )
+        .unwrap();
+        assert_eq!(r.dof(), &q0);
+        assert_eq!(r.dof_velocity(), &v0);
+        let mut expect_q = q0;
+        let mut expect_v = v0;
+        let sk = chain::<f64>();
+        for _ in 0..120 {
+            let before = r.frame().to_vec();
+            let mut out = [0.0; 12];
+            Network::<f64>::predict(&mut net, 0.0, &before, &mut out).unwrap();
+            sk.limit(&mut expect_q, &mut expect_v, &out[2..6]);
+            r.step(&mut net).unwrap();
+            assert_eq!(r.dof(), &expect_q);
+            assert_eq!(r.dof_velocity(), &expect_v);
+            let f = r.frame();
+            let (mut p, mut g) = ([0.0; 9], [0.0; 27]);
+            sk.forward_kinematics(&expect_q, &mut p, &mut g).unwrap();
+            assert_eq!(f[2..11], p);
+            for j in 0..3 {
+                let m = &g[9 * j..9 * j + 9];
+                assert_eq!(
+                    f[11 + 6 * j..17 + 6 * j],
+                    [m[2], m[5], m[8], m[1], m[4], m[7]]
+                );
+                for k in 0..3 {
+                    assert_eq!(
+                        f[29 + 3 * j + k],
+                        (p[3 * j + k] - before[2 + 3 * j + k]) * 60.0
+                    );
+                }
+            }
+            assert_eq!(f[..2], before[..2], "phase from the output");
+            let mut c = [0.0; 6];
+            grounded_costs(&dof_layout(), f, &mut c);
+            assert_eq!(f[38..44], c);
+        }
+        // Within the limits all along (grandchild.z is driven by its bias
+        // into its +0.2 limit).
+        assert!((r.dof()[3] - 0.2).abs() < 1e-12, "{:?}", r.dof());
+        // The hand came closer to its target.
+        let d = |f: &[f64]| (0..3).map(|k| (f[44 + k] - f[8 + k]).powi(2)).sum::<f64>();
+        assert!(
+            d(r.frame()) < d(&first),
+            "{} vs {}",
+            d(r.frame()),
+            d(&first)
+        );
+        // A failed frame changes nothing, joint angles included.
+        let (frame, q, v) = (
+            r.frame().to_vec(),
+            r.dof().to_vec(),
+            r.dof_velocity().to_vec(),
+        );
+        net.fail = true;
+        assert!(r.step(&mut net).is_err());
+        assert_eq!(
+            (r.frame(), r.dof(), r.dof_velocity()),
+            (&frame[..], &q[..], &v[..])
+        );
+    }
+
+    #[test]
+    fn dof_layouts_and_start_states_are_refused_naming_the_check() {
+        let net = Toward {
+            bias: [0.0; 4],
+            fail: false,
+        };
+        let first: Vec<f64> = dof_first([0.3, 2.0, 0.5]);
+        let z = [0.0; 4];
+        let make = |l: ReachLayout, sk: Skeleton<f64>, q: &[f64], v: &[f64]| {
+            Reach::<f64, 64>::with_dofs(&net, l, CostMode::Grounded, &first, sk, q, v).err()
+        };
+        let reason = |r| Some(Error::BadLayout { reason: r });
+        assert_eq!(make(dof_layout(), chain(), &z, &z), None);
+        assert_eq!(
+            Reach::<f64, 64>::new(&net, dof_layout(), CostMode::Grounded, &first).err(),
+            reason(12)
+        );
+        let mut l = dof_layout();
+        l.pose = PoseForm::Absolute;
+        assert_eq!(make(l, chain(), &z, &z), reason(12));
+        let with = |out: Range<usize>, vel: Range<usize>| ReachLayout {
+            pose: PoseForm::DofVelocity { out, vel },
+            ..dof_layout()
+        };
+        assert_eq!(make(with(2..13, 29..38), chain(), &z, &z), reason(8));
+        assert_eq!(make(with(2..5, 29..38), chain(), &z, &z), reason(8));
+        assert_eq!(make(with(2..6, 29..37), chain(), &z, &z), reason(9));
+        let mut l = dof_layout();
+        l.blocks[1] = (2..6, 2..6);
+        assert_eq!(make(l, chain(), &z, &z), reason(10));
+        let two = Skeleton::new(
+            chain::<f64>().joints()[..2].iter().copied(),
+            chain::<f64>().dofs().iter().copied().take(3).chain([Dof {
+                joint: 0,
+                axis: 1,
+                lower: 0.0,
+                upper: 0.0,
+            }]),
+            60.0,
+            5.0,
+        )
+        .unwrap();
+        assert_eq!(make(dof_layout(), two, &z, &z), reason(11));
+        assert!(matches!(
+            make(dof_layout(), chain(), &z[..3], &z),
+            Some(Error::Runtime(_))
+        ));
+        assert_eq!(
+            make(dof_layout(), chain(), &z, &[0.0, 0.0, f64::NAN, 0.0]),
+            Some(Error::BadStart { index: 6 })
+        );
+        assert_eq!(
+            make(dof_layout(), chain(), &[f64::INFINITY, 0.0, 0.0, 0.0], &z),
+            Some(Error::BadStart { index: 0 })
+        );
+    }
+
+    /// The device's f32 loop and the host's f64 loop over the same
+    /// network and start differ by rounding only: within 1e-5 m over 200
+    /// steps of a closed loop that drives joints into their limits.
+    #[test]
+    fn the_f32_and_f64_dof_loops_agree_closely() {
+        let bias = [0.004, -0.003, 0.002, 0.006];
+        let (mut n32, mut n64) = (Toward { bias, fail: false }, Toward { bias, fail: false });
+        let (q0, v0) = ([0.01, -0.02, 0.03, 0.0], [0.6, -1.2, 1.8, 0.0]);
+        let f64_first: Vec<f64> = dof_first([0.4, 1.6, 0.6]);
+        let f32_first: Vec<f32> = dof_first([0.4, 1.6, 0.6]);
+        let mut a: Reach<f64, 64> = Reach::with_dofs(
+            &n64,
+            dof_layout(),
+            CostMode::Grounded,
+            &f64_first,
+            chain(),
+            &q0,
+            &v0,
+        )
+        .unwrap();
+        let mut b: Reach<f32, 64> = Reach::with_dofs(
+            &n32,
+            dof_layout(),
+            CostMode::Grounded,
+            &f32_first,
+            chain(),
+            &q0.map(|v| v as f32),
+            &v0.map(|v| v as f32),
+        )
+        .unwrap();
+        let mut worst = 0f64;
+        let mut at_limit = false;
+        for _ in 0..200 {
+            a.step(&mut n64).unwrap();
+            b.step(&mut n32).unwrap();
+            for (x, y) in a.pose().positions.iter().zip(b.pose().positions) {
+                worst = worst.max((x - f64::from(*y)).abs());
+            }
+            at_limit |= a
+                .dof()
+                .iter()
+                .zip(chain::<f64>().dofs())
+                .any(|(q, d)| *q == d.upper || *q == d.lower);
+        }
+        assert!(at_limit, "the loop reaches a limit");
+        assert!(worst < 1e-5, "{worst}");
+        assert!(worst > 0.0, "different precisions");
     }
 }

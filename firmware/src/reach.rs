@@ -1,10 +1,13 @@
 //! Reach mode (input images of mode 2, `controller` feature): the OMG
 //! reaching loop (`Reach<f32, W>` over the runtime) from the image's first
-//! frame, with the image's layout and cost mode; per record, the hands'
+//! frame, with the image's layout and cost mode (and, for a joint-velocity
+//! model, its skeleton and start joint angles and velocities:
+//! `Reach::with_dofs`); per record, the hands'
 //! targets are set (a refused one is recorded, the previous one holds) and
 //! one `Reach::step` runs; every frame `X` is written with its timings.
 
 use defmt::{error, info, Display2Format};
+use phasegate_controller::reach::{Skeleton, MAX_DOFS};
 use phasegate_controller::{Error, Reach};
 use semihosting::io::Write as _;
 
@@ -13,27 +16,62 @@ use crate::wire::reach::{self as wr, TargetOutcome};
 use crate::{create_output, exit, finish, measure, wire, Rt, Slot, Timed, IO};
 
 /// The loop's state, in .bss: three frames of up to [`W`] f32 (the
-/// current frame, the network's output, the targets) and the layout.
-static REACH: Slot<Reach<f32, W>> = Slot::empty();
+/// current frame, the network's output, the targets), the layout and room
+/// for a skeleton with its joint angles and velocities. Made in place from
+/// its idle constant: the 8.8 KB state never passes through the stack.
+static REACH: Slot<Reach<f32, W>> = Slot::with(Reach::IDLE);
 
-/// Makes the loop's state from the setup and moves it into its static. Not
-/// inlined, so the transient `Reach` lives in this short-lived frame.
+/// Starts the loop in its static from the setup (`Reach::restart`, or
+/// `Reach::restart_dofs` with the setup's skeleton, checked by
+/// `Skeleton::new`, and start state); a refusal is logged with its typed
+/// error and exits with `BAD_LAYOUT`.
 #[inline(never)]
 fn init_reach(rt: &Rt, setup: wr::Setup<'_>, first: &mut [f32]) -> &'static mut Reach<f32, W> {
     if wr::read_f32(setup.first, first).is_none() {
         exit(wire::exit::BAD_INPUT);
     }
-    let state = match Reach::new(rt, setup.layout, setup.mode, first) {
-        Ok(s) => s,
-        Err(e) => {
-            error!("reaching loop refused: {} ({})", e, Display2Format(&e));
-            exit(wire::exit::BAD_LAYOUT);
-        }
+    // SAFETY: REACH is made with `Slot::with`.
+    let Some(state) = (unsafe { REACH.take() }) else {
+        exit(wire::exit::PANIC)
     };
-    match REACH.init(state) {
-        Some(s) => s,
-        None => exit(wire::exit::PANIC),
+    let made = match setup.dofs {
+        None => state.restart(rt, setup.layout, setup.mode, first),
+        Some(d) => restart_dofs(state, rt, setup.layout, setup.mode, d, first),
+    };
+    if let Err(e) = made {
+        error!("reaching loop refused: {} ({})", e, Display2Format(&e));
+        exit(wire::exit::BAD_LAYOUT);
     }
+    state
+}
+
+/// A joint-velocity model's loop: its skeleton and start state from the
+/// setup's section.
+#[inline(never)]
+fn restart_dofs(
+    state: &mut Reach<f32, W>,
+    rt: &Rt,
+    layout: phasegate_controller::ReachLayout,
+    mode: phasegate_controller::CostMode,
+    d: wr::DofSetup<'_>,
+    first: &[f32],
+) -> phasegate_controller::Result<()> {
+    let (mut q, mut v) = ([0f32; MAX_DOFS], [0f32; MAX_DOFS]);
+    let n = d.dof_count;
+    let (Some(q0), Some(v0)) = (q.get_mut(..n), v.get_mut(..n)) else {
+        exit(wire::exit::BAD_INPUT);
+    };
+    if d.start(q0, v0).is_none() {
+        exit(wire::exit::BAD_INPUT);
+    }
+    let sk = Skeleton::new(d.joints(), d.dofs(), d.fps, d.a_max)?;
+    info!(
+        "joint-velocity model: {=usize} joints, {=usize} DOFs, {=f32} fps",
+        sk.joints().len(),
+        n,
+        d.fps
+    );
+    state.restart_dofs(rt, layout, mode, first, sk, q0, v0)
 }
 
 /// Reach mode: never returns.

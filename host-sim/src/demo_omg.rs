@@ -135,7 +135,13 @@ pub struct OmgDemo {
 
 fn run(e: &Embedded, net: &mut impl phasegate_controller::Network<f64>) -> Result<Run> {
     let t: Vec<&[f64]> = e.targets.iter().map(Vec::as_slice).collect();
-    let frames = rollout(&e.omg, &e.first, &t, Mode::Grounded, net)?;
+    let frames = rollout(
+        &e.omg,
+        &crate::omg::Start::frame(&e.first),
+        &t,
+        Mode::Grounded,
+        net,
+    )?;
     // The data's frames, for the targets: the first frame's pose with each
     // frame's target block.
     let range = e.omg.config.slice("target");

@@ -1,17 +1,24 @@
 //! OMG models on the host: the reaching rollout loop of `tools/omg/omg_np.py`
 //! (feed `Y` back as the next `X`, overwrite the target block every frame
 //! and, in grounded mode, recompute the cost block from the decoded pose),
-//! driven by the f64 graph forward ([`OmgNet::step`]) or by the fixed-point
+//! driven by the f64 graph forward ([`FloatOmg`]) or by the fixed-point
 //! runtime ([`FixedOmg`]), and the figures of `host-sim omg-accuracy`:
 //! the f64 forward against the committed PyTorch references, and int16 /
 //! int8 blobs against the f64 forward, one step and over the 300-frame
 //! grounded rollout (`docs/omg.md`).
+//!
+//! Joint-velocity models (`docs/omg-joint-velocity.md`) run the same loop
+//! (`phasegate_controller::Reach::with_dofs`) from a [`Start`] that also
+//! holds the joint angles and velocities; their one-step figures compare
+//! network outputs (`[phase', u, cost']`, no pose), their rollouts frames
+//! as for every model.
 
 use std::collections::BTreeMap;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context, Result};
-use exporter::net::omg::{read_omg, OmgNet};
+use exporter::net::omg::{read_omg, OmgNet, OmgSkeleton};
 use exporter::quantise::QuantOptions;
 use phasegate::blob::WeightFormat;
 use phasegate::{Model, Phase, Runtime};
@@ -19,8 +26,8 @@ use serde::Serialize;
 
 use crate::eval::{host_runtime, HOST_CAPACITY};
 use crate::quant_knobs::Int8Knobs;
-use phasegate_controller::reach::{self, Reach, ReachLayout};
-use phasegate_controller::Network;
+use phasegate_controller::reach::{self, Dof, Joint, PoseForm, Reach, ReachLayout, Skeleton};
+use phasegate_controller::{Network, Real};
 
 /// A `(clips, frames, width)` array.
 #[derive(Clone, Debug)]
@@ -73,6 +80,147 @@ pub struct References {
     pub rollout: Clips,
     /// The target block of every rollout frame (clips, 300, 9K).
     pub targets: Clips,
+    /// A joint-velocity model's start states and joint angles.
+    pub dof: Option<DofReferences>,
+}
+
+/// The references of a joint-velocity model beside the frames:
+/// `rollout_q0`, `rollout_v0` (clips, D) and `rollout_dof` (clips, 300, D).
+#[derive(Clone, Debug)]
+pub struct DofReferences {
+    /// Each rollout's start joint angles, radians.
+    pub q0: Vec<Vec<f64>>,
+    /// Each rollout's start joint velocities, rad/s.
+    pub v0: Vec<Vec<f64>>,
+    /// The loop's joint angles at every rollout frame.
+    pub dof: Clips,
+}
+
+/// Where a rollout starts: the first frame and, for a joint-velocity
+/// model, the joint angles and velocities that go with it (empty for an
+/// absolute model).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Start {
+    /// The first frame `X` (raw units).
+    pub first: Vec<f64>,
+    /// Joint angles `q0`, radians (joint-velocity models).
+    pub q0: Vec<f64>,
+    /// Joint velocities `v0`, rad/s (joint-velocity models).
+    pub v0: Vec<f64>,
+}
+
+impl Start {
+    /// An absolute model's start: the frame alone.
+    pub fn frame(first: &[f64]) -> Start {
+        Start {
+            first: first.to_vec(),
+            q0: Vec::new(),
+            v0: Vec::new(),
+        }
+    }
+
+    /// A clip's start from its frame 0 (the model's width) and, for a
+    /// joint-velocity model, that frame's joint angles `q0` (the data's
+    /// `dof` block; `None` when the data has none) with `v0 = q0 * fps`
+    /// (the data's frame 0 is one IK step from rest).
+    pub fn clip(omg: &OmgNet, first: &[f64], q0: Option<&[f64]>) -> Result<Start> {
+        let Some(form) = &omg.dof else {
+            return Ok(Start::frame(first));
+        };
+        let q0 = q0.context(
+            "a joint-velocity model starts a clip from its joint angles: the data has no dof block \
+             (regenerate it with tools/omg/generate)",
+        )?;
+        let d = form.skeleton.dofs.len();
+        if q0.len() != d {
+            bail!(
+                "the data's dof block has {} values, the model's rig {d} DOFs",
+                q0.len()
+            );
+        }
+        let fps = form.skeleton.fps;
+        Ok(Start {
+            first: first.to_vec(),
+            q0: q0.to_vec(),
+            v0: q0.iter().map(|q| q * fps).collect(),
+        })
+    }
+
+    /// A joint-velocity model's start from rest for the target block
+    /// `targets` ([`reach::rest_frame`]: FK of `q = 0`, zero velocities,
+    /// phases 0, the costs grounded on the targets; `q0 = v0 = 0`). An
+    /// absolute model has no rest of its own: `None`.
+    pub fn rest(omg: &OmgNet, targets: &[f64]) -> Result<Option<Start>> {
+        let Some(form) = &omg.dof else {
+            return Ok(None);
+        };
+        let mut first = vec![0.0; omg.config.model_width];
+        reach::rest_frame(
+            &reach_layout(omg)?,
+            &skeleton::<f64>(&form.skeleton)?,
+            targets,
+            &mut first,
+        )
+        .map_err(|e| anyhow!("rest frame: {e}"))?;
+        let d = form.skeleton.dofs.len();
+        Ok(Some(Start {
+            first,
+            q0: vec![0.0; d],
+            v0: vec![0.0; d],
+        }))
+    }
+
+    /// The target block of a rest frame whose key joints are their own
+    /// targets (each key joint's position and forward/up axes): what the
+    /// targets a script leaves unnamed hold when it starts from rest.
+    pub fn rest_targets(omg: &OmgNet) -> Result<Vec<f64>> {
+        let cfg = &omg.config;
+        let k = cfg.key;
+        let mut t = vec![0.0; 9 * k];
+        for h in 0..k {
+            t[3 * k + 6 * h + 2] = 1.0;
+            t[3 * k + 6 * h + 4] = 1.0;
+        }
+        let Some(rest) = Start::rest(omg, &t)? else {
+            bail!("an absolute model has no rest frame of its own");
+        };
+        let (pos, rot) = (cfg.slice("pos"), cfg.slice("rot"));
+        for (h, &j) in cfg.key_joint_indices.iter().enumerate() {
+            t[3 * h..3 * h + 3].copy_from_slice(&rest.first[pos.start + 3 * j..][..3]);
+            t[3 * k + 6 * h..3 * k + 6 * h + 6]
+                .copy_from_slice(&rest.first[rot.start + 6 * j..][..6]);
+        }
+        Ok(t)
+    }
+}
+
+/// The controller's skeleton of a joint-velocity model, in `R`.
+pub fn skeleton<R: Real>(sk: &OmgSkeleton) -> Result<Skeleton<R>> {
+    let joints = sk
+        .parents
+        .iter()
+        .zip(&sk.offsets)
+        .map(|(p, o)| {
+            Ok(Joint {
+                parent: p.map(u16::try_from).transpose()?,
+                offset: o.map(R::lit),
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let dofs = sk
+        .dofs
+        .iter()
+        .map(|d| {
+            Ok(Dof {
+                joint: u16::try_from(d.joint)?,
+                axis: u8::try_from(d.axis)?,
+                lower: R::lit(d.lower),
+                upper: R::lit(d.upper),
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Skeleton::new(joints, dofs, R::lit(sk.fps), R::lit(sk.a_max))
+        .map_err(|e| anyhow!("controller.skeleton: {e}"))
 }
 
 /// A model directory: the imported model and its references.
@@ -91,17 +239,23 @@ pub fn load_dir(dir: &Path) -> Result<OmgDir> {
     let path = dir.join("references.npz");
     let mut arrays = exporter::npz::read_npz(&path)?;
     let mut take = |name: &str| Clips::take(&mut arrays, name, &path);
-    let refs = References {
+    let mut refs = References {
         inputs: take("inputs")?,
         one_step: take("one_step")?,
         rollout: take("rollout_grounded")?,
         targets: take("rollout_targets")?,
+        dof: None,
     };
     let n = omg.config.model_width;
     let t = omg.config.slice("target").len();
+    // A joint-velocity model's one step is its network output.
+    let n_one = match omg.dof {
+        None => n,
+        Some(_) => omg.net.output_dim(),
+    };
     for (name, c, w) in [
         ("inputs", &refs.inputs, n),
-        ("one_step", &refs.one_step, n),
+        ("one_step", &refs.one_step, n_one),
         ("rollout_grounded", &refs.rollout, n),
         ("rollout_targets", &refs.targets, t),
     ] {
@@ -129,6 +283,33 @@ pub fn load_dir(dir: &Path) -> Result<OmgDir> {
             refs.rollout.dims,
             refs.targets.dims
         );
+    }
+    if let Some(form) = &omg.dof {
+        let d = form.skeleton.dofs.len();
+        let [clips, frames, _] = refs.rollout.dims;
+        let mut two = |name: &str| -> Result<Vec<Vec<f64>>> {
+            let a = arrays
+                .remove(name)
+                .with_context(|| format!("{}: no array {name}", path.display()))?;
+            if a.shape != [clips as u64, d as u64] {
+                bail!(
+                    "{}: array {name} has shape {:?}, expected [{clips}, {d}] (clips, DOFs)",
+                    path.display(),
+                    a.shape
+                );
+            }
+            Ok(a.data.chunks(d.max(1)).map(<[f64]>::to_vec).collect())
+        };
+        let (q0, v0) = (two("rollout_q0")?, two("rollout_v0")?);
+        let dof = Clips::take(&mut arrays, "rollout_dof", &path)?;
+        if dof.dims != [clips, frames, d] {
+            bail!(
+                "{}: array rollout_dof has shape {:?}, expected [{clips}, {frames}, {d}]",
+                path.display(),
+                dof.dims
+            );
+        }
+        refs.dof = Some(DofReferences { q0, v0, dof });
     }
     Ok(OmgDir {
         dir: dir.to_path_buf(),
@@ -166,6 +347,13 @@ pub fn reach_layout(omg: &OmgNet) -> Result<ReachLayout> {
         target: cfg.slice("target"),
         key_joints,
         blocks: omg.blocks.clone(),
+        pose: match &omg.dof {
+            None => PoseForm::Absolute,
+            Some(form) => PoseForm::DofVelocity {
+                out: form.u.clone(),
+                vel: cfg.slice("vel"),
+            },
+        },
     })
 }
 
@@ -196,26 +384,67 @@ impl Network<f64> for FloatOmg<'_> {
 pub const MAX_WIDTH: usize = 2048;
 
 /// The controller's reaching loop (`phasegate_controller::Reach`, in f64)
-/// from frame `first`: every later frame `t` is one step of `net` with the
+/// from `start`: every later frame `t` is one step of `net` with the
 /// target block set to `targets[t]`. Returns every frame (raw units).
 pub fn rollout(
     omg: &OmgNet,
-    first: &[f64],
+    start: &Start,
     targets: &[&[f64]],
     mode: Mode,
     net: &mut impl Network<f64>,
 ) -> Result<Vec<Vec<f64>>> {
-    let mut reach: Box<Reach<f64, MAX_WIDTH>> =
-        Box::new(Reach::new(net, reach_layout(omg)?, mode, first)?);
+    Ok(rollout_dofs(omg, start, targets, mode, net)?.0)
+}
+
+/// Every frame of a rollout, and its joint angles (one empty row per frame
+/// for an absolute model).
+pub type FramesAndDofs = (Vec<Vec<f64>>, Vec<Vec<f64>>);
+
+/// [`rollout`], and the joint angles of every frame (empty for an
+/// absolute model).
+pub fn rollout_dofs(
+    omg: &OmgNet,
+    start: &Start,
+    targets: &[&[f64]],
+    mode: Mode,
+    net: &mut impl Network<f64>,
+) -> Result<FramesAndDofs> {
+    let layout = reach_layout(omg)?;
+    let first = &start.first;
+    let mut reach: Box<Reach<f64, MAX_WIDTH>> = Box::new(match &omg.dof {
+        None => Reach::new(net, layout, mode, first)?,
+        Some(form) => Reach::with_dofs(
+            net,
+            layout,
+            mode,
+            first,
+            skeleton(&form.skeleton)?,
+            &start.q0,
+            &start.v0,
+        )?,
+    });
     let mut out = vec![first.to_vec()];
+    let mut dofs = vec![reach.dof().to_vec()];
     for (t, target) in targets.iter().enumerate().skip(1) {
         reach
             .set_target_block(target)
             .with_context(|| format!("frame {t}"))?;
         reach.step(net).with_context(|| format!("frame {t}"))?;
         out.push(reach.frame().to_vec());
+        dofs.push(reach.dof().to_vec());
     }
-    Ok(out)
+    Ok((out, dofs))
+}
+
+/// Where reference clip `c`'s rollout starts: its first input frame and,
+/// for a joint-velocity model, `rollout_q0` / `rollout_v0`.
+pub fn reference_start(d: &OmgDir, c: usize) -> Start {
+    let mut s = Start::frame(d.refs.inputs.row(c, 0));
+    if let Some(r) = &d.refs.dof {
+        s.q0 = r.q0[c].clone();
+        s.v0 = r.v0[c].clone();
+    }
+    s
 }
 
 /// The grounded rollout of clip `c` of the references by `net`.
@@ -224,11 +453,20 @@ pub fn reference_rollout(
     c: usize,
     net: &mut impl Network<f64>,
 ) -> Result<Vec<Vec<f64>>> {
+    Ok(reference_rollout_dofs(d, c, net)?.0)
+}
+
+/// [`reference_rollout`] with the joint angles of every frame.
+pub fn reference_rollout_dofs(
+    d: &OmgDir,
+    c: usize,
+    net: &mut impl Network<f64>,
+) -> Result<FramesAndDofs> {
     let frames = d.refs.targets.dims[1];
     let targets: Vec<&[f64]> = (0..frames).map(|t| d.refs.targets.row(c, t)).collect();
-    rollout(
+    rollout_dofs(
         &d.omg,
-        d.refs.inputs.row(c, 0),
+        &reference_start(d, c),
         &targets,
         Mode::Grounded,
         net,
@@ -368,13 +606,55 @@ pub fn diff(omg: &OmgNet, a: &[Vec<f64>], b: &[Vec<f64>]) -> Diff {
     d
 }
 
+/// Compares network outputs `a` against `b` (the reference), relative to
+/// the output statistics (`max_rel` as in [`diff`]); no joint figures:
+/// a joint-velocity model's output has no pose.
+pub fn diff_outputs(omg: &OmgNet, a: &[Vec<f64>], b: &[Vec<f64>]) -> Diff {
+    let std = &omg.net.ystd;
+    let mut d = Diff {
+        frames: a.len(),
+        ..Diff::default()
+    };
+    for (x, y) in a.iter().zip(b) {
+        for j in 0..x.len() {
+            let e = (x[j] - y[j]).abs();
+            d.max_abs = d.max_abs.max(e);
+            d.max_rel = d.max_rel.max(e / y[j].abs().max(std[j]));
+        }
+    }
+    d
+}
+
+/// One step of `omg` compared the way its form allows: frames ([`diff`])
+/// for an absolute model, network outputs ([`diff_outputs`]) for a
+/// joint-velocity one.
+fn diff_one_step(omg: &OmgNet, a: &[Vec<f64>], b: &[Vec<f64>]) -> Diff {
+    match omg.dof {
+        None => diff(omg, a, b),
+        Some(_) => diff_outputs(omg, a, b),
+    }
+}
+
+/// The one-step result of `omg` for frame `x` from its network output
+/// `out`: the next frame (absolute) or the output itself (joint velocity).
+fn one_step_of(omg: &OmgNet, out: &[f64], x: &[f64]) -> Vec<f64> {
+    match omg.dof {
+        None => omg.frame(out, x),
+        Some(_) => out.to_vec(),
+    }
+}
+
 /// The f64 graph forward against the PyTorch (float64) references.
 #[derive(Clone, Debug, Serialize)]
 pub struct FloatAgreement {
-    /// One step on the reference inputs vs PyTorch's outputs.
+    /// One step on the reference inputs vs PyTorch's outputs (frames; a
+    /// joint-velocity model's network outputs).
     pub one_step: Diff,
     /// The grounded rollouts vs PyTorch's (all clips' frames).
     pub rollout: Diff,
+    /// A joint-velocity model's rollout joint angles vs `rollout_dof`:
+    /// the largest difference, radians.
+    pub rollout_dof_max_rad: Option<f64>,
 }
 
 fn frames_of(c: &Clips, clip: usize) -> Vec<Vec<f64>> {
@@ -408,11 +688,27 @@ pub fn float_rollouts(d: &OmgDir) -> Result<Vec<Vec<f64>>> {
 
 /// Measures [`FloatAgreement`].
 pub fn float_agreement(d: &OmgDir) -> Result<FloatAgreement> {
-    let y = one_step(d, |x| Ok(d.omg.step(x)))?;
-    let ro = float_rollouts(d)?;
+    let y = one_step(d, |x| Ok(one_step_of(&d.omg, &d.omg.output(x), x)))?;
+    let mut ro = Vec::new();
+    let mut dof_max: Option<f64> = None;
+    for c in 0..d.refs.targets.dims[0] {
+        let (frames, dofs) = reference_rollout_dofs(d, c, &mut FloatOmg(&d.omg))?;
+        ro.extend(frames);
+        if let Some(r) = &d.refs.dof {
+            for (t, q) in dofs.iter().enumerate() {
+                let m = q
+                    .iter()
+                    .zip(r.dof.row(c, t))
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+                dof_max = Some(dof_max.unwrap_or(0.0).max(m));
+            }
+        }
+    }
     Ok(FloatAgreement {
-        one_step: diff(&d.omg, &y, &all_frames(&d.refs.one_step)),
+        one_step: diff_one_step(&d.omg, &y, &all_frames(&d.refs.one_step)),
         rollout: diff(&d.omg, &ro, &all_frames(&d.refs.rollout)),
+        rollout_dof_max_rad: dof_max,
     })
 }
 
@@ -427,11 +723,15 @@ pub struct FixedAgreement {
     pub macs_per_frame: u32,
     /// Activation RAM, bytes.
     pub ram_bytes: usize,
-    /// One step on the reference inputs vs the f64 forward.
+    /// One step on the reference inputs vs the f64 forward (frames; a
+    /// joint-velocity model's network outputs, no joint figures).
     pub one_step: Diff,
     /// Largest one-step error of the pose block's positions, metres (per
-    /// coordinate).
+    /// coordinate; 0 for a joint-velocity model).
     pub one_step_pos_max_m: f64,
+    /// A joint-velocity model's largest one-step error of `u`, radians
+    /// per frame.
+    pub one_step_u_max_rad: Option<f64>,
     /// The fixed-point grounded rollouts vs the f64 ones (all clips, all
     /// frames).
     pub rollout: Diff,
@@ -556,14 +856,18 @@ fn agreement(
     mut fx: FixedOmg<'_>,
     weights: &'static str,
 ) -> Result<FixedAgreement> {
-    let yf = one_step(d, |x| Ok(d.omg.frame(&fx.run(x)?, x)))?;
-    let yr = one_step(d, |x| Ok(d.omg.step(x)))?;
-    let pos = d.omg.config.slice("pos");
-    let one_step_pos_max_m = yf
-        .iter()
-        .zip(&yr)
-        .flat_map(|(a, b)| pos.clone().map(move |j| (a[j] - b[j]).abs()))
-        .fold(0.0, f64::max);
+    let yf = one_step(d, |x| Ok(one_step_of(&d.omg, &fx.run(x)?, x)))?;
+    let yr = one_step(d, |x| Ok(one_step_of(&d.omg, &d.omg.output(x), x)))?;
+    let largest = |r: Range<usize>| {
+        yf.iter()
+            .zip(&yr)
+            .flat_map(|(a, b)| r.clone().map(move |j| (a[j] - b[j]).abs()))
+            .fold(0.0, f64::max)
+    };
+    let (one_step_pos_max_m, one_step_u_max_rad) = match &d.omg.dof {
+        None => (largest(d.omg.config.slice("pos")), None),
+        Some(form) => (0.0, Some(largest(form.u.clone()))),
+    };
     let ro_float = float_rollouts(d)?;
     let mut ro_fixed = Vec::new();
     for c in 0..d.refs.targets.dims[0] {
@@ -574,8 +878,9 @@ fn agreement(
         blob_bytes: model.blob_len(),
         macs_per_frame: model.macs_per_frame(),
         ram_bytes: model.ram_bytes(),
-        one_step: diff(&d.omg, &yf, &yr),
+        one_step: diff_one_step(&d.omg, &yf, &yr),
         one_step_pos_max_m,
+        one_step_u_max_rad,
         rollout: diff(&d.omg, &ro_fixed, &ro_float),
         rollout_by_horizon: HORIZONS
             .iter()
@@ -647,29 +952,44 @@ impl OmgAccuracy {
     pub fn table(&self) -> String {
         let mut s = format!("{}\n", self.dir);
         let f = &self.float;
+        let dof = f.rollout_dof_max_rad.is_some();
         s += &format!(
-            "f64 forward vs PyTorch float64: one step ({} frames) max rel {:.2e}, max abs {:.2e}; \
-             grounded rollout ({} frames) max rel {:.2e}, max abs {:.2e}, max joint {:.2e} m\n",
+            "f64 forward vs PyTorch float64: one step ({} {}) max rel {:.2e}, max abs {:.2e}; \
+             grounded rollout ({} frames) max rel {:.2e}, max abs {:.2e}, max joint {:.2e} m{}\n",
             f.one_step.frames,
+            if dof { "network outputs" } else { "frames" },
             f.one_step.max_rel,
             f.one_step.max_abs,
             f.rollout.frames,
             f.rollout.max_rel,
             f.rollout.max_abs,
-            f.rollout.max_joint_m
+            f.rollout.max_joint_m,
+            f.rollout_dof_max_rad
+                .map_or(String::new(), |r| format!(", joint angles max {r:.2e} rad"))
         );
-        s += "blob   bytes   MACs/frame  RAM B | one step vs f64: pos max cm  joint p99 cm  joint max cm | \
-              rollout vs f64: joint p99 cm  joint max cm  mean cm\n";
+        if dof {
+            s += "blob   bytes   MACs/frame  RAM B | one step vs f64: u max rad/frame  output max rel | \
+                  rollout vs f64: joint p99 cm  joint max cm  mean cm\n";
+        } else {
+            s += "blob   bytes   MACs/frame  RAM B | one step vs f64: pos max cm  joint p99 cm  joint max cm | \
+                  rollout vs f64: joint p99 cm  joint max cm  mean cm\n";
+        }
         for x in &self.fixed {
+            let one = match x.one_step_u_max_rad {
+                Some(u) => format!("{u:>32.2e} {:>15.2e}", x.one_step.max_rel),
+                None => format!(
+                    "{:>27.3} {:>13.3} {:>13.3}",
+                    100.0 * x.one_step_pos_max_m,
+                    100.0 * x.one_step.p99_joint_m,
+                    100.0 * x.one_step.max_joint_m
+                ),
+            };
             s += &format!(
-                "{:<6} {:>7} {:>10} {:>6} | {:>27.3} {:>13.3} {:>13.3} | {:>29.3} {:>13.3} {:>8.3}\n",
+                "{:<6} {:>7} {:>10} {:>6} | {one} | {:>29.3} {:>13.3} {:>8.3}\n",
                 x.weights,
                 x.blob_bytes,
                 x.macs_per_frame,
                 x.ram_bytes,
-                100.0 * x.one_step_pos_max_m,
-                100.0 * x.one_step.p99_joint_m,
-                100.0 * x.one_step.max_joint_m,
                 100.0 * x.rollout.p99_joint_m,
                 100.0 * x.rollout.max_joint_m,
                 100.0 * x.rollout.mean_joint_m,
@@ -695,7 +1015,7 @@ impl OmgAccuracy {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use exporter::net::omg::OmgConfig;
 
@@ -724,6 +1044,7 @@ mod tests {
             },
             blocks: [(0..2, 0..2), (2..26, 2..26), (26..32, 26..32)],
             target: 32..41,
+            dof: None,
         };
         let l = reach_layout(&omg).unwrap();
         assert_eq!(
@@ -802,5 +1123,161 @@ mod tests {
             assert!(e.contains("references.npz"), "{e}");
             assert!(e.contains(want), "{e}");
         }
+    }
+
+    /// A joint-velocity model to test with: `$PHASEGATE_DOF_MODEL`, or the
+    /// preview `tools/omg/train` writes to `data/omg/models/dof_preview`
+    /// (not committed); `None` (the tests skip) without one.
+    pub(crate) fn dof_model() -> Option<PathBuf> {
+        let dir = std::env::var_os("PHASEGATE_DOF_MODEL").map_or_else(
+            || Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/omg/models/dof_preview"),
+            PathBuf::from,
+        );
+        if dir.join("config.json").exists() {
+            Some(dir)
+        } else {
+            eprintln!(
+                "SKIPPED: no joint-velocity model at {} (set PHASEGATE_DOF_MODEL)",
+                dir.display()
+            );
+            None
+        }
+    }
+
+    /// The f64 loop reproduces PyTorch's rollouts of a joint-velocity
+    /// model (frames and joint angles) and its one-step network outputs,
+    /// as `tools/omg` requires of every model (1e-4 relative); the layout
+    /// is the joint-velocity form; a rest start is FK of `q = 0`.
+    #[test]
+    fn a_dof_model_reproduces_its_references_and_starts_from_rest() {
+        let Some(dir) = dof_model() else { return };
+        let d = load_dir(&dir).unwrap();
+        let form = d.omg.dof.as_ref().expect("a dof_velocity model");
+        let l = reach_layout(&d.omg).unwrap();
+        assert_eq!(
+            l.pose,
+            PoseForm::DofVelocity {
+                out: form.u.clone(),
+                vel: d.omg.config.slice("vel"),
+            }
+        );
+        assert!(d.refs.dof.is_some());
+        let f = float_agreement(&d).unwrap();
+        eprintln!(
+            "f64 vs PyTorch: one step max rel {:.2e}, rollout max rel {:.2e}, joint angles {:.2e} rad",
+            f.one_step.max_rel,
+            f.rollout.max_rel,
+            f.rollout_dof_max_rad.unwrap()
+        );
+        assert!(f.one_step.max_rel < 1e-4, "{:?}", f.one_step);
+        assert!(f.rollout.max_rel < 1e-4, "{:?}", f.rollout);
+        assert!(f.rollout_dof_max_rad.unwrap() < 1e-5);
+        assert_eq!(
+            f.rollout.frames,
+            d.refs.rollout.dims[0] * d.refs.rollout.dims[1]
+        );
+
+        // From rest: q0 = v0 = 0, the rig's rest positions, the targets.
+        let t = Start::rest_targets(&d.omg).unwrap();
+        let rest = Start::rest(&d.omg, &t).unwrap().unwrap();
+        assert!(rest.q0.iter().chain(&rest.v0).all(|&v| v == 0.0));
+        let rig: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join("rig.json")).unwrap()).unwrap();
+        let pos = d.omg.config.slice("pos");
+        for (j, p) in rig["rest_positions"].as_array().unwrap().iter().enumerate() {
+            for k in 0..3 {
+                let want = p[k].as_f64().unwrap();
+                assert!(
+                    (rest.first[pos.start + 3 * j + k] - want).abs() < 1e-5,
+                    "joint {j}"
+                );
+            }
+        }
+        let c = d.omg.config.slice("cost");
+        assert!(
+            rest.first[c].iter().all(|v| v.abs() < 1e-6),
+            "own targets: no cost"
+        );
+        let targets: Vec<&[f64]> = vec![&t; 5];
+        let (frames, dofs) = rollout_dofs(
+            &d.omg,
+            &rest,
+            &targets,
+            Mode::Grounded,
+            &mut FloatOmg(&d.omg),
+        )
+        .unwrap();
+        assert_eq!((frames.len(), dofs.len()), (5, 5));
+        assert!(dofs[4]
+            .iter()
+            .zip(&form.skeleton.dofs)
+            .all(|(q, f)| *q >= f.lower && *q <= f.upper));
+        // An absolute model has no rest of its own.
+        let abs = load_dir(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg/tiny_fe_r1"))
+            .unwrap();
+        assert!(Start::rest(&abs.omg, &vec![0.0; 36]).unwrap().is_none());
+        assert!(abs.refs.dof.is_none());
+    }
+
+    /// A held-out clip of the generated data starts with its own joint
+    /// angles, `v0 = q0 * fps`.
+    #[test]
+    fn a_dof_clip_starts_from_the_datas_joint_angles() {
+        let Some(dir) = dof_model() else { return };
+        let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/omg");
+        let d = load_dir(&dir).unwrap();
+        let held = crate::omg_reach::HeldOut::read_splits(&data, "R1", 440, &["test"], 2).unwrap();
+        let s = held.start(&d.omg, 1).unwrap();
+        assert_eq!(s.q0.len(), 30);
+        assert!(s.q0.iter().zip(&s.v0).all(|(q, v)| *v == q * 60.0));
+        assert!(s.q0.iter().any(|&q| q != 0.0));
+        // The references' clips start the same way.
+        let r = d.refs.dof.as_ref().unwrap();
+        for (q, v) in r.q0.iter().zip(&r.v0) {
+            for (a, b) in q.iter().zip(v) {
+                assert!((a * 60.0 - b).abs() < 1e-6);
+            }
+        }
+        assert!(Start::clip(&d.omg, &held.clips[0][0], None)
+            .unwrap_err()
+            .to_string()
+            .contains("no dof block"));
+        assert!(Start::clip(&d.omg, &held.clips[0][0], Some(&[0.0; 3])).is_err());
+    }
+
+    /// A joint-velocity model's references without their start states or
+    /// with a one step of frame width are refused naming the array.
+    #[test]
+    fn damaged_dof_references_are_refused_naming_the_array() {
+        let Some(dir) = dof_model() else { return };
+        let mut arrays = exporter::npz::read_npz(&dir.join("references.npz")).unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        for f in ["config.json", "model.safetensors"] {
+            std::fs::copy(dir.join(f), tmp.path().join(f)).unwrap();
+        }
+        let write = |a: &BTreeMap<String, exporter::npz::NpArray>| {
+            let list: Vec<(&str, Vec<u64>, Vec<f32>)> = a
+                .iter()
+                .map(|(k, v)| {
+                    (
+                        k.as_str(),
+                        v.shape.clone(),
+                        v.data.iter().map(|&x| x as f32).collect(),
+                    )
+                })
+                .collect();
+            exporter::npz::write_npz(&tmp.path().join("references.npz"), &list).unwrap();
+            format!("{:#}", load_dir(tmp.path()).err().unwrap())
+        };
+        let mut a = arrays.clone();
+        a.remove("rollout_v0");
+        assert!(write(&a).contains("no array rollout_v0"));
+        let mut a = arrays.clone();
+        a.get_mut("rollout_q0").unwrap().shape = vec![1, 60];
+        assert!(write(&a).contains("array rollout_q0 has shape [1, 60], expected [2, 30]"));
+        let x = arrays.remove("inputs").unwrap();
+        arrays.insert("one_step".into(), x.clone());
+        arrays.insert("inputs".into(), x);
+        assert!(write(&arrays).contains("array one_step has width 440, expected 62"));
     }
 }

@@ -1,7 +1,9 @@
 //! `host-sim omg-reach`: the OMG models reaching on the held-out clips of
 //! their rig, in f64 and as int16 and int8 blobs on the host runtime.
 //!
-//! Every clip is rolled out grounded from its frame 0 for its 300 frames,
+//! Every clip is rolled out grounded from its frame 0 for its 300 frames
+//! (a joint-velocity model with that frame's joint angles from the data's
+//! `dof` block and `v0 = q0 * fps`),
 //! driven only by the data's targets (as `tools/omg/evaluate.py` does, so
 //! the f64 figures can be checked against `models/omg/eval.json`). Per
 //! spawned hand target (the first `reps` constant-target intervals of each
@@ -18,7 +20,7 @@ use anyhow::{bail, Context, Result};
 use phasegate::blob::WeightFormat;
 use serde::Serialize;
 
-use crate::omg::{diff, load_dir, rollout, Diff, FixedOmg, FloatOmg, Mode, OmgDir};
+use crate::omg::{diff, load_dir, rollout, Diff, FixedOmg, FloatOmg, Mode, OmgDir, Start};
 use crate::quant_knobs::Int8Knobs;
 use crate::saturation::{saturated, Saturation};
 use exporter::net::omg::OmgConfig;
@@ -33,6 +35,48 @@ pub struct HeldOut {
     pub clips: Vec<Vec<Vec<f64>>>,
     /// Hand targets spawned per hand in each clip (`clips.json` `reps`).
     pub reps: Vec<usize>,
+    /// Each clip's joint angles at frame 0 (the data's `dof` block,
+    /// `layout.json`), where the data has them.
+    pub q0: Vec<Option<Vec<f64>>>,
+}
+
+impl HeldOut {
+    /// Where clip `c`'s rollout of `omg` starts ([`Start::clip`]).
+    pub fn start(&self, omg: &exporter::net::omg::OmgNet, c: usize) -> Result<Start> {
+        Start::clip(omg, &self.clips[c][0], self.q0[c].as_deref())
+    }
+}
+
+/// The columns of the `dof` block (joint angles) of the rig's data files,
+/// from `data/<rig>/layout.json`; `None` when it has none.
+fn dof_columns(dir: &Path) -> Result<Option<std::ops::Range<usize>>> {
+    let path = dir.join("layout.json");
+    let Ok(bytes) = std::fs::read(&path) else {
+        return Ok(None);
+    };
+    let v: serde_json::Value =
+        serde_json::from_slice(&bytes).with_context(|| format!("{}", path.display()))?;
+    let block = v["blocks"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .find(|b| b["name"] == "dof");
+    Ok(block.map(|b| {
+        let at = |k: &str| b[k].as_u64().unwrap_or(0) as usize;
+        at("offset")..at("offset") + at("size")
+    }))
+}
+
+/// Frame 0's `dof` columns of clip `c` of a `(clips, t, w)` array.
+fn clip_q0(
+    data: &[f32],
+    c: usize,
+    t: usize,
+    w: usize,
+    dof: &Option<std::ops::Range<usize>>,
+) -> Option<Vec<f64>> {
+    let r = dof.clone().filter(|r| r.end <= w)?;
+    Some(data[c * t * w..][r].iter().map(|&v| f64::from(v)).collect())
 }
 
 #[derive(serde::Deserialize)]
@@ -64,9 +108,11 @@ impl HeldOut {
             &std::fs::read(&meta_path).with_context(|| format!("{}", meta_path.display()))?,
         )
         .with_context(|| format!("{}", meta_path.display()))?;
+        let dof = dof_columns(&dir)?;
         let mut out = HeldOut {
             clips: Vec::new(),
             reps: Vec::new(),
+            q0: Vec::new(),
         };
         for &split in splits {
             let path = dir.join(format!("{split}.npy"));
@@ -90,6 +136,7 @@ impl HeldOut {
                     .reps;
                 out.reps.push(reps);
                 out.clips.push(clip_rows(&data, c, t, w, width));
+                out.q0.push(clip_q0(&data, c, t, w, &dof));
             }
         }
         Ok(out)
@@ -307,9 +354,16 @@ fn rollouts(
     let out = held
         .clips
         .iter()
-        .map(|clip| {
+        .enumerate()
+        .map(|(c, clip)| {
             let targets: Vec<&[f64]> = clip.iter().map(|f| &f[t.clone()]).collect();
-            let y = rollout(&d.omg, &clip[0], &targets, Mode::Grounded, net);
+            let y = rollout(
+                &d.omg,
+                &held.start(&d.omg, c)?,
+                &targets,
+                Mode::Grounded,
+                net,
+            );
             bar.inc(1);
             y
         })
@@ -341,9 +395,11 @@ pub fn train_rollouts(d: &OmgDir, data: &Path, rig: &str, n: usize) -> Result<Re
             path.display()
         );
     }
+    let dof = dof_columns(&data.join(rig))?;
     let train = HeldOut {
         clips: (0..n).map(|c| clip_rows(&values, c, t, w, width)).collect(),
         reps: vec![0; n],
+        q0: (0..n).map(|c| clip_q0(&values, c, t, w, &dof)).collect(),
     };
     let inputs: Vec<Vec<f64>> = rollouts(d, &train, &mut FloatOmg(&d.omg), "f64 (calibration)")?
         .concat()

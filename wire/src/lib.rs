@@ -8,13 +8,13 @@
 //! rather than postcard: frame `i` is read in place at a fixed offset, and
 //! a run cut short shows in the output file's length.
 //!
-//! Host -> firmware: the **input image** (version 2), loaded raw at the start
+//! Host -> firmware: the **input image** (version 3), loaded raw at the start
 //! of the HOSTIO region (memory.x) with `-device loader,file=...,force-raw=on`:
 //!
 //! | offset | size | field |
 //! |---|---|---|
 //! | 0 | 4 | magic `PGIN` |
-//! | 4 | 2 | version (2) |
+//! | 4 | 2 | version (3) |
 //! | 6 | 2 | header length (32): the first record starts here |
 //! | 8 | 4 | frames N |
 //! | 12 | 4 | input dim I |
@@ -48,8 +48,10 @@
 //! **Reach mode** (2): the firmware runs the OMG reaching loop
 //! (`Reach<f32, W>` over the runtime). I is the frame width n (the
 //! network's inputs), O the network's outputs. The records start with a
-//! setup (layout, cost mode, first frame; [`reach::encode_setup`],
-//! [`reach::setup_len`]`(I)` bytes, counted in the CRC), then N target
+//! setup (layout, cost mode, the pose form with a joint-velocity model's
+//! skeleton and start joint angles and velocities, first frame;
+//! [`reach::encode_setup`], [`reach::setup_len`]`(I)` bytes, counted in
+//! the CRC), then N target
 //! records of [`reach::TARGET_RECORD_LEN`] bytes (a flags word, both
 //! hands' position, forward, up as f32). The output records are
 //! [`reach::frame_record_len`]`(I)` bytes: network ticks, frame ticks,
@@ -131,8 +133,10 @@ pub const INPUT_MAGIC: [u8; 4] = *b"PGIN";
 pub const OUTPUT_MAGIC: [u8; 4] = *b"PGOT";
 /// Magic of the output file's trailer.
 pub const TRAILER_MAGIC: [u8; 4] = *b"PGND";
-/// Version of the input image (2: a mix field starts every record).
-pub const INPUT_VERSION: u16 = 2;
+/// Version of the input image (2: a mix field starts every record; 3: the
+/// reach setup carries the pose form and a joint-velocity model's
+/// skeleton and start state).
+pub const INPUT_VERSION: u16 = 3;
 /// Version of the output file.
 pub const OUTPUT_VERSION: u16 = 1;
 /// Bytes of a record's mix field.

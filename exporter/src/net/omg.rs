@@ -24,6 +24,18 @@
 //! The network's output is the model output `Y` without its target block,
 //! in the order phase, pose, costs ([`OmgNet::frame`] puts it back into
 //! `Y`'s layout and copies the targets from the input, as the model does).
+//!
+//! Joint-velocity models (`pose_form: "dof_velocity"`,
+//! `docs/omg-joint-velocity.md`): the decoder's last layer `dec.2` has D
+//! rows, one per degree of freedom of the rig, and the middle rows of
+//! `out` are those D rows: the network's output is `[phase', u, cost']`
+//! with `u` the desired joint velocity in radians per frame (the output
+//! statistics of that block are `norm.dof_mean` / `norm.dof_std`). The
+//! pose comes from the reaching controller (limits, integration, forward
+//! kinematics on the config's `controller.skeleton`, which [`OmgNet::dof`]
+//! carries); one stateless frame is no longer a frame, so
+//! [`OmgNet::step`] is for absolute models and [`OmgNet::output`] gives
+//! the network output of either.
 //! One node has to produce all three because a blob's output is one slice of
 //! one node; folding the phase update and the cost copy into the decoder's
 //! last layer costs `(2K + 6K) * (12J + 8K) + 2K * 12J` MACs more than the
@@ -83,6 +95,10 @@ pub struct OmgSizes {
     /// layer's input).
     #[serde(default)]
     pub clusters: usize,
+    /// Degrees of freedom D of a joint-velocity model (the decoder's
+    /// output width); 0 otherwise.
+    #[serde(default)]
+    pub dof: usize,
 }
 
 /// The phase update `theta' = a * dtheta + (1 - a) * theta`.
@@ -105,6 +121,13 @@ pub struct OmgNormalisation {
     /// Per-feature standard deviations, if written.
     #[serde(default)]
     pub std: Option<Vec<f64>>,
+    /// A joint-velocity model's `u` means (`norm.dof_mean`), if written.
+    #[serde(default)]
+    pub dof_mean: Option<Vec<f64>>,
+    /// A joint-velocity model's `u` standard deviations (`norm.dof_std`),
+    /// if written.
+    #[serde(default)]
+    pub dof_std: Option<Vec<f64>>,
 }
 
 /// What the importer and the rollouts read from `config.json` (other fields
@@ -147,6 +170,183 @@ pub struct OmgConfig {
     /// Normalisation.
     #[serde(default)]
     pub normalisation: Option<OmgNormalisation>,
+    /// `"absolute"` (the decoder outputs the pose block; also when absent)
+    /// or `"dof_velocity"` (the decoder outputs the desired joint velocity,
+    /// `docs/omg-joint-velocity.md`).
+    #[serde(default)]
+    pub pose_form: Option<String>,
+    /// The reaching controller's parameters of a joint-velocity model.
+    #[serde(default)]
+    pub controller: Option<OmgControllerJson>,
+}
+
+/// `config.json` `controller` as written (checked into an
+/// [`OmgSkeleton`] by the importer).
+#[derive(Clone, Debug, Deserialize)]
+pub struct OmgControllerJson {
+    /// Frames per second.
+    pub fps: f64,
+    /// The joints' acceleration limit, rad/s^2.
+    pub a_max: f64,
+    /// The rig.
+    pub skeleton: OmgSkeletonJson,
+}
+
+/// `controller.skeleton` as written.
+#[derive(Clone, Debug, Deserialize)]
+pub struct OmgSkeletonJson {
+    /// J parents (-1: a root), parents before children.
+    pub parents: Vec<i64>,
+    /// J rest offsets from the parent, metres.
+    pub offsets: Vec<[f64; 3]>,
+    /// D degrees of freedom in the rig's order.
+    pub dofs: Vec<OmgDofJson>,
+}
+
+/// One entry of `controller.skeleton.dofs` as written.
+#[derive(Clone, Debug, Deserialize)]
+pub struct OmgDofJson {
+    /// The joint it turns.
+    pub joint: i64,
+    /// 0 = x, 1 = y, 2 = z.
+    pub axis: i64,
+    /// Lowest angle, radians.
+    pub lower: f64,
+    /// Highest angle, radians.
+    pub upper: f64,
+}
+
+/// One checked degree of freedom.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OmgDof {
+    /// The joint it turns.
+    pub joint: usize,
+    /// 0 = x, 1 = y, 2 = z.
+    pub axis: usize,
+    /// Lowest angle, radians.
+    pub lower: f64,
+    /// Highest angle, radians (at least `lower`).
+    pub upper: f64,
+}
+
+/// The checked skeleton and rates of a joint-velocity model (what the
+/// reaching controller's `Skeleton` is built from).
+#[derive(Clone, Debug, PartialEq)]
+pub struct OmgSkeleton {
+    /// Frames per second.
+    pub fps: f64,
+    /// The joints' acceleration limit, rad/s^2.
+    pub a_max: f64,
+    /// Per joint its parent (`None`: a root), parents before children.
+    pub parents: Vec<Option<usize>>,
+    /// Per joint its rest offset, metres.
+    pub offsets: Vec<[f64; 3]>,
+    /// The DOFs, in the order of `u` and of the data's `dof` block.
+    pub dofs: Vec<OmgDof>,
+}
+
+/// Where a joint-velocity model's `u` is and the rig it moves.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DofForm {
+    /// Where `u` (D values, radians per frame) is in the net's output.
+    pub u: Range<usize>,
+    /// The rig.
+    pub skeleton: OmgSkeleton,
+}
+
+/// Most joints and DOFs the controller takes (its `MAX_JOINTS`,
+/// `MAX_DOFS`).
+pub const MAX_SKELETON: usize = 64;
+
+/// Checks `controller` of the config of a model of `joints` joints and
+/// `dofs` DOFs (`sizes.dof`); errors name the field.
+fn skeleton(c: &OmgControllerJson, joints: usize, dofs: usize) -> Result<OmgSkeleton> {
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    if !positive(c.fps) {
+        bail!("controller.fps = {}, expected a finite rate above 0", c.fps);
+    }
+    if !positive(c.a_max) {
+        bail!(
+            "controller.a_max = {}, expected a finite limit above 0",
+            c.a_max
+        );
+    }
+    let sk = &c.skeleton;
+    if sk.parents.len() != joints || sk.offsets.len() != joints {
+        bail!(
+            "controller.skeleton has {} parents and {} offsets, but J = {joints}",
+            sk.parents.len(),
+            sk.offsets.len()
+        );
+    }
+    if joints > MAX_SKELETON {
+        bail!(
+            "controller.skeleton has {joints} joints; the controller takes at most {MAX_SKELETON}"
+        );
+    }
+    if sk.dofs.len() != dofs {
+        bail!(
+            "controller.skeleton.dofs has {} entries, but sizes.dof = {dofs}",
+            sk.dofs.len()
+        );
+    }
+    if dofs > MAX_SKELETON {
+        bail!("controller.skeleton has {dofs} DOFs; the controller takes at most {MAX_SKELETON}");
+    }
+    let mut parents = Vec::with_capacity(joints);
+    for (j, &p) in sk.parents.iter().enumerate() {
+        parents.push(match p {
+            -1 => None,
+            p if p >= 0 && (p as usize) < j => Some(p as usize),
+            p => bail!(
+                "controller.skeleton.parents[{j}] = {p}, expected -1 (a root) or a joint before {j}"
+            ),
+        });
+    }
+    for (j, o) in sk.offsets.iter().enumerate() {
+        if let Some(v) = o.iter().find(|v| !(v.is_finite() && v.abs() <= 100.0)) {
+            bail!(
+                "controller.skeleton.offsets[{j}] holds {v}, expected finite metres within 100 m"
+            );
+        }
+    }
+    let mut seen = std::collections::BTreeSet::new();
+    let mut out = Vec::with_capacity(dofs);
+    for (d, f) in sk.dofs.iter().enumerate() {
+        let at = format!("controller.skeleton.dofs[{d}]");
+        if !(0..joints as i64).contains(&f.joint) {
+            bail!(
+                "{at}.joint = {}, expected a joint below J = {joints}",
+                f.joint
+            );
+        }
+        if !(0..3).contains(&f.axis) {
+            bail!("{at}.axis = {}, expected 0, 1 or 2", f.axis);
+        }
+        if !(f.lower.is_finite() && f.upper.is_finite() && f.lower <= f.upper) {
+            bail!(
+                "{at}: lower = {}, upper = {}, expected finite limits with lower <= upper",
+                f.lower,
+                f.upper
+            );
+        }
+        if !seen.insert((f.joint, f.axis)) {
+            bail!("{at}: a second DOF on joint {} axis {}", f.joint, f.axis);
+        }
+        out.push(OmgDof {
+            joint: f.joint as usize,
+            axis: f.axis as usize,
+            lower: f.lower,
+            upper: f.upper,
+        });
+    }
+    Ok(OmgSkeleton {
+        fps: c.fps,
+        a_max: c.a_max,
+        parents,
+        offsets: sk.offsets.clone(),
+        dofs: out,
+    })
 }
 
 impl OmgConfig {
@@ -190,21 +390,29 @@ impl OmgConfig {
 pub struct OmgNet {
     /// The config it was built from.
     pub config: OmgConfig,
-    /// The graph (input X, output `[phase', pose', cost']`).
+    /// The graph (input X, output `[phase', pose', cost']`, or for a
+    /// joint-velocity model `[phase', u, cost']`).
     pub net: Net,
     /// Where the net's output blocks go in `Y`: (range in the net's
-    /// output, range in `Y`) for phase, pose and cost.
+    /// output, range in `Y`) for phase, pose and cost (a joint-velocity
+    /// model's pose entry is empty: its pose comes from the controller).
     pub blocks: [(Range<usize>, Range<usize>); 3],
     /// `Y`'s target block (copied from X).
     pub target: Range<usize>,
+    /// A joint-velocity model's `u` block and skeleton (`None`: absolute).
+    pub dof: Option<DofForm>,
 }
 
 impl OmgNet {
     /// The model's `Y` (width n) from the net's output and the frame's `X`:
-    /// the three computed blocks in their places and the targets copied
-    /// from `X`.
+    /// the computed blocks in their places and the targets copied from
+    /// `X` (a joint-velocity model's pose block stays `X`'s: the
+    /// controller makes the next one).
     pub fn frame(&self, net_out: &[f64], x: &[f64]) -> Vec<f64> {
-        let mut y = vec![0.0; self.config.model_width];
+        let mut y = match self.dof {
+            None => vec![0.0; self.config.model_width],
+            Some(_) => x.to_vec(),
+        };
         for (from, to) in &self.blocks {
             y[to.clone()].copy_from_slice(&net_out[from.clone()]);
         }
@@ -212,9 +420,17 @@ impl OmgNet {
         y
     }
 
-    /// One frame of the model in f64, raw units: `Y = step(X)`.
+    /// The network's output for frame `X` in f64, raw units: `[phase',
+    /// pose', cost']`, or `[phase', u, cost']` for a joint-velocity model.
+    pub fn output(&self, x: &[f64]) -> Vec<f64> {
+        self.net.forward(x, 0.0)
+    }
+
+    /// One frame of an absolute model in f64, raw units: `Y = step(X)`.
+    /// For a joint-velocity model the next frame needs the controller's
+    /// state (`phasegate_controller::Reach`): use [`OmgNet::output`].
     pub fn step(&self, x: &[f64]) -> Vec<f64> {
-        self.frame(&self.net.forward(x, 0.0), x)
+        self.frame(&self.output(x), x)
     }
 }
 
@@ -397,6 +613,58 @@ fn normalisation(
     Ok((mean, std))
 }
 
+/// The output statistics of a joint-velocity model's `u` block:
+/// `norm.dof_mean` / `norm.dof_std` (D each), std below [`MIN_STD`] taken
+/// as 1 as for the others.
+fn dof_statistics(
+    cfg: &OmgConfig,
+    arrays: &BTreeMap<String, NpArray>,
+    d: usize,
+) -> Result<(Array1<f64>, Array1<f64>)> {
+    let why = format!("sizes.dof = {d}: the u block's output statistics");
+    let m = get(arrays, "norm.dof_mean")?;
+    check_shape(m, "norm.dof_mean", &[d], &why)?;
+    let s = get(arrays, "norm.dof_std")?;
+    check_shape(s, "norm.dof_std", &[d], &why)?;
+    for (name, a) in [("norm.dof_mean", m), ("norm.dof_std", s)] {
+        if let Some(i) = a.data.iter().position(|v| !v.is_finite()) {
+            bail!("tensor {name:?} is not finite at index {i}");
+        }
+    }
+    if let Some(i) = s.data.iter().position(|v| *v < 0.0) {
+        bail!("tensor \"norm.dof_std\" is negative at index {i}");
+    }
+    let std: Array1<f64> = s
+        .data
+        .iter()
+        .map(|&v| if v < MIN_STD { 1.0 } else { v })
+        .collect();
+    let mean = Array1::from(m.data.clone());
+    // The config's copies, when present, must equal the tensors.
+    if let Some(nm) = &cfg.normalisation {
+        for (what, cfgv, ours) in [
+            ("dof_mean", &nm.dof_mean, &mean),
+            ("dof_std", &nm.dof_std, &std),
+        ] {
+            let Some(v) = cfgv else { continue };
+            if v.len() != d {
+                bail!(
+                    "config normalisation.{what} has {} values, not {d}",
+                    v.len()
+                );
+            }
+            if let Some(i) = (0..d).find(|&i| (v[i] - ours[i]).abs() > 1e-6 * (1.0 + v[i].abs())) {
+                bail!(
+                    "normalisation.{what}[{i}] = {}, but the weights' norm.{what}[{i}] = {}",
+                    v[i],
+                    ours[i]
+                );
+            }
+        }
+    }
+    Ok((mean, std))
+}
+
 /// Builds the graph net of an OMG model from its config and tensors. Errors
 /// name the tensor or config field; [`read_omg`] adds the file.
 pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Result<OmgNet> {
@@ -462,6 +730,37 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     }
     let moe_out = dphase.end.max(z.end).max(ocost.end);
     let (mean, std) = normalisation(cfg, arrays)?;
+    // The decoder's output: the pose block, or a joint-velocity model's D
+    // desired joint velocities (with their own output statistics).
+    let dof = match cfg.pose_form.as_deref() {
+        None | Some("absolute") => None,
+        Some("dof_velocity") => {
+            let d = s.dof;
+            if d == 0 {
+                bail!("pose_form \"dof_velocity\" needs sizes.dof > 0 (the rig's DOFs)");
+            }
+            let c = cfg.controller.as_ref().ok_or_else(|| {
+                anyhow!(
+                    "pose_form \"dof_velocity\" needs a controller block (fps, a_max, skeleton)"
+                )
+            })?;
+            let sk = skeleton(c, j, d)?;
+            // The network output's u block, when the config names it.
+            if let Some(&[a, b]) = cfg.out_slices.get("u") {
+                let (np, want) = (phase.len(), phase.len()..phase.len() + d);
+                if (a..b) != want {
+                    bail!(
+                        "out_slices.u = [{a}, {b}], but the network output is [phase', u, cost'] \
+                         with u at [{np}, {}]",
+                        np + d
+                    );
+                }
+            }
+            Some((sk, dof_statistics(cfg, arrays, d)?))
+        }
+        Some(f) => bail!("pose_form = {f:?}, expected \"absolute\" or \"dof_velocity\""),
+    };
+    let dec_out = dof.as_ref().map_or(pose.len(), |(sk, _)| sk.dofs.len());
 
     // The encoder's input: the pose block, or (FS) the span of its columns.
     let (enc_in, enc_w0) = match &cfg.encoder_columns {
@@ -517,11 +816,12 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
         (_, "DEC-CAT") => Some(("dec", NetLayer::Dec(dec_layer(arrays, cat, s.latent)?))),
         _ => Some(("rbf", NetLayer::Rbf(rbf_layer(arrays, cat, s.latent)?))),
     };
-    let dec = mlp(arrays, "dec", s.latent, s.ae_hidden, pose.len(), "decoder")?;
+    let dec = mlp(arrays, "dec", s.latent, s.ae_hidden, dec_out, "decoder")?;
 
-    // The output node: [dphase, phase, dec1, cost'] -> [phase', pose', cost'].
+    // The output node: [dphase, phase, dec1, cost'] -> [phase', pose', cost']
+    // (or [phase', u, cost']).
     let (np, nh, nc) = (phase.len(), s.ae_hidden, cost.len());
-    let rows = np + pose.len() + nc;
+    let rows = np + dec_out + nc;
     let cols = 2 * np + nh + nc;
     let mut w = Array2::zeros((rows, cols));
     let mut b = Array1::zeros(rows);
@@ -530,12 +830,12 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
         w[[i, np + i]] = 1.0 - a;
     }
     let [_, _, dec2] = &dec;
-    w.slice_mut(ndarray::s![np..np + pose.len(), 2 * np..2 * np + nh])
+    w.slice_mut(ndarray::s![np..np + dec_out, 2 * np..2 * np + nh])
         .assign(&dec2.w[0]);
-    b.slice_mut(ndarray::s![np..np + pose.len()])
+    b.slice_mut(ndarray::s![np..np + dec_out])
         .assign(&dec2.b[0]);
     for i in 0..nc {
-        w[[np + pose.len() + i, 2 * np + nh + i]] = 1.0;
+        w[[np + dec_out + i, 2 * np + nh + i]] = 1.0;
     }
     let out_layer = ExpertLayer {
         w: vec![w],
@@ -714,21 +1014,32 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     );
     let output = whole(out, rows)?;
 
-    let blocks = [
-        (0..np, phase.clone()),
-        (np..np + pose.len(), pose.clone()),
-        (np + pose.len()..rows, cost.clone()),
-    ];
-    let pick = |v: &Array1<f64>| -> Array1<f64> {
-        blocks
-            .iter()
-            .flat_map(|(_, r)| v.slice(ndarray::s![r.clone()]).to_vec())
-            .collect()
+    let blocks = match dof {
+        None => [
+            (0..np, phase.clone()),
+            (np..np + pose.len(), pose.clone()),
+            (np + pose.len()..rows, cost.clone()),
+        ],
+        Some(_) => [
+            (0..np, phase.clone()),
+            (np..np, pose.start..pose.start),
+            (np + dec_out..rows, cost.clone()),
+        ],
+    };
+    // The output statistics, block after block: phase, pose (or the
+    // joint velocities'), costs.
+    let pick = |v: &Array1<f64>, dofs: Option<&Array1<f64>>| -> Array1<f64> {
+        let at = |r: &Range<usize>| v.slice(ndarray::s![r.clone()]).to_vec();
+        let middle = match dofs {
+            None => at(&pose),
+            Some(d) => d.to_vec(),
+        };
+        [at(&phase), middle, at(&cost)].concat().into()
     };
     let net = Net {
         mode: GatingMode::Constant,
-        ymean: pick(&mean),
-        ystd: pick(&std),
+        ymean: pick(&mean, dof.as_ref().map(|(_, (m, _))| m)),
+        ystd: pick(&std, dof.as_ref().map(|(_, (_, s))| s)),
         xmean: mean,
         xstd: std,
         layers,
@@ -739,6 +1050,10 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
         net,
         blocks,
         target,
+        dof: dof.map(|(skeleton, _)| DofForm {
+            u: np..np + dec_out,
+            skeleton,
+        }),
     })
 }
 
@@ -831,6 +1146,7 @@ pub(crate) mod tests {
                 gate_hidden: hg,
                 experts: ke,
                 clusters: 0,
+                dof: 0,
             },
             slices: [
                 ("phase", sl(0, np)),
@@ -860,13 +1176,41 @@ pub(crate) mod tests {
             mode: "grounded".into(),
             encoder_columns: None,
             normalisation: None,
+            pose_form: None,
+            controller: None,
         };
         (cfg, arrays)
     }
 
     /// The forward pass as `tools/omg/omg_np.py` writes it, straight from
-    /// the tensors.
+    /// the tensors: the model's `Y`.
     fn reference(cfg: &OmgConfig, t: &BTreeMap<String, NpArray>, raw: &[f64]) -> Vec<f64> {
+        let (y, _) = reference_parts(cfg, t, raw);
+        y
+    }
+
+    /// A joint-velocity model's forward pass straight from the tensors:
+    /// the network output `[phase', u, cost']` in raw units.
+    fn reference_dof(cfg: &OmgConfig, t: &BTreeMap<String, NpArray>, raw: &[f64]) -> Vec<f64> {
+        let (y, u) = reference_parts(cfg, t, raw);
+        let v = |n: &str| t[n].data.clone();
+        let dstd: Vec<f64> = v("norm.dof_std")
+            .into_iter()
+            .map(|s| if s < MIN_STD { 1.0 } else { s })
+            .collect();
+        let u: Vec<f64> = (0..u.len())
+            .map(|i| u[i] * dstd[i] + v("norm.dof_mean")[i])
+            .collect();
+        [&y[cfg.slice("phase")], &u[..], &y[cfg.slice("cost")]].concat()
+    }
+
+    /// `Y` (its pose block the decoder's output when that has the pose's
+    /// width) and the decoder's output, normalised.
+    fn reference_parts(
+        cfg: &OmgConfig,
+        t: &BTreeMap<String, NpArray>,
+        raw: &[f64],
+    ) -> (Vec<f64>, Vec<f64>) {
         let v = |n: &str| t[n].data.clone();
         let std: Vec<f64> = v("norm.std")
             .into_iter()
@@ -962,10 +1306,15 @@ pub(crate) mod tests {
             y[col] = 0.9 * hv[os("dphase")][i] + 0.1 * x[col];
         }
         let pose = mlp("dec", hv[os("z")].to_vec());
-        y[r("pose")].copy_from_slice(&pose);
+        if pose.len() == r("pose").len() {
+            y[r("pose")].copy_from_slice(&pose);
+        }
         y[r("cost")].copy_from_slice(&hv[os("cost")]);
         y[r("target")].copy_from_slice(&x[r("target")]);
-        (0..y.len()).map(|i| y[i] * std[i] + mean[i]).collect()
+        (
+            (0..y.len()).map(|i| y[i] * std[i] + mean[i]).collect(),
+            pose,
+        )
     }
 
     /// [`tiny`] as RBF-CAT: `clusters` RBF units in front of every expert
@@ -1129,6 +1478,244 @@ pub(crate) mod tests {
         }
     }
 
+    /// [`tiny`] as a joint-velocity model: its 2 joints (a root and a
+    /// child 0.3 m up), D = 3 DOFs (root.y, child.x, child.z), `dec.2` of
+    /// D rows and the `u` block's statistics (one constant: std 0).
+    pub(crate) fn tiny_dof(seed: u64) -> (OmgConfig, BTreeMap<String, NpArray>) {
+        let (mut cfg, mut arrays) = tiny(seed);
+        let d = 3usize;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed + 200);
+        let h = cfg.sizes.ae_hidden;
+        let mut put = |name: &str, shape: &[usize], lo: f64, hi: f64| {
+            let len = shape.iter().product();
+            arrays.insert(
+                name.to_string(),
+                NpArray {
+                    shape: shape.iter().map(|&v| v as u64).collect(),
+                    data: (0..len).map(|_| rng.gen_range(lo..hi)).collect(),
+                },
+            );
+        };
+        put("dec.2.w", &[d, h], -0.6, 0.6);
+        put("dec.2.b", &[d], -0.6, 0.6);
+        put("norm.dof_mean", &[d], -0.01, 0.01);
+        put("norm.dof_std", &[d], 0.001, 0.02);
+        arrays.get_mut("norm.dof_std").unwrap().data[1] = 0.0;
+        cfg.sizes.dof = d;
+        cfg.pose_form = Some("dof_velocity".into());
+        cfg.controller = Some(OmgControllerJson {
+            fps: 60.0,
+            a_max: 5.0,
+            skeleton: OmgSkeletonJson {
+                parents: vec![-1, 0],
+                offsets: vec![[0.0, 1.0, 0.0], [0.0, 0.3, 0.0]],
+                dofs: [(0, 1), (1, 0), (1, 2)]
+                    .iter()
+                    .map(|&(joint, axis)| OmgDofJson {
+                        joint,
+                        axis,
+                        lower: -0.5,
+                        upper: 0.5,
+                    })
+                    .collect(),
+            },
+        });
+        (cfg, arrays)
+    }
+
+    #[test]
+    fn a_dof_model_outputs_phase_u_and_costs() {
+        let (cfg, arrays) = tiny_dof(11);
+        let m = net_from_omg(&cfg, &arrays).unwrap();
+        let (np, nc) = (2, 6);
+        let form = m.dof.as_ref().unwrap();
+        assert_eq!(form.u, np..np + 3);
+        assert_eq!(m.net.output_dim(), np + 3 + nc);
+        assert_eq!(form.skeleton.parents, vec![None, Some(0)]);
+        assert_eq!(form.skeleton.dofs[2].axis, 2);
+        assert_eq!((form.skeleton.fps, form.skeleton.a_max), (60.0, 5.0));
+        // The u block's statistics are the dof tensors (std 0 -> 1).
+        assert_eq!(m.net.ystd[np + 1], 1.0);
+        assert_eq!(m.net.ymean[np], arrays["norm.dof_mean"].data[0]);
+        assert_eq!(m.blocks[1], (np..np, 2..2));
+        assert_eq!(m.blocks[2], (np + 3..np + 3 + nc, cfg.slice("cost")));
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
+        for _ in 0..20 {
+            let x: Vec<f64> = (0..cfg.model_width)
+                .map(|_| rng.gen_range(-2.0..2.0))
+                .collect();
+            let (got, want) = (m.output(&x), reference_dof(&cfg, &arrays, &x));
+            assert_eq!(got.len(), want.len());
+            for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                assert!((g - w).abs() < 1e-12, "{i}: {g} vs {w}");
+            }
+            // frame(): the phase and costs in place, the pose kept.
+            let y = m.frame(&got, &x);
+            assert_eq!(y[cfg.slice("pose")], x[cfg.slice("pose")]);
+            assert_eq!(y[cfg.slice("cost")], got[np + 3..]);
+        }
+        // An absolute model has no dof form and its old output.
+        let (cfg, arrays) = tiny(11);
+        let a = net_from_omg(&cfg, &arrays).unwrap();
+        assert!(a.dof.is_none());
+        assert_eq!(a.net.output_dim(), 2 + 24 + 6);
+    }
+
+    #[test]
+    fn bad_dof_configs_and_tensors_are_named() {
+        let (cfg, arrays) = tiny_dof(13);
+        let with = |f: &dyn Fn(&mut OmgSkeletonJson)| {
+            let mut c = cfg.clone();
+            f(&mut c.controller.as_mut().unwrap().skeleton);
+            err(&c, &arrays)
+        };
+        assert_eq!(
+            with(&|s| s.dofs[2].axis = 5),
+            "controller.skeleton.dofs[2].axis = 5, expected 0, 1 or 2"
+        );
+        assert_eq!(
+            with(&|s| s.dofs[0].joint = 2),
+            "controller.skeleton.dofs[0].joint = 2, expected a joint below J = 2"
+        );
+        assert_eq!(
+            with(&|s| s.dofs[1].lower = 0.9),
+            "controller.skeleton.dofs[1]: lower = 0.9, upper = 0.5, expected finite limits with lower <= upper"
+        );
+        assert_eq!(
+            with(&|s| s.dofs[2].axis = 0),
+            "controller.skeleton.dofs[2]: a second DOF on joint 1 axis 0"
+        );
+        assert_eq!(
+            with(&|s| s.parents[1] = 1),
+            "controller.skeleton.parents[1] = 1, expected -1 (a root) or a joint before 1"
+        );
+        assert!(with(&|s| s.offsets[0][1] = f64::NAN)
+            .starts_with("controller.skeleton.offsets[0] holds NaN"));
+        assert_eq!(
+            with(&|s| {
+                s.parents.pop();
+            }),
+            "controller.skeleton has 1 parents and 2 offsets, but J = 2"
+        );
+        let mut c = cfg.clone();
+        c.controller.as_mut().unwrap().a_max = 0.0;
+        assert_eq!(
+            err(&c, &arrays),
+            "controller.a_max = 0, expected a finite limit above 0"
+        );
+        let mut c = cfg.clone();
+        c.controller.as_mut().unwrap().fps = f64::INFINITY;
+        assert!(err(&c, &arrays).starts_with("controller.fps = inf"));
+        let mut c = cfg.clone();
+        c.sizes.dof = 4;
+        assert_eq!(
+            err(&c, &arrays),
+            "controller.skeleton.dofs has 3 entries, but sizes.dof = 4"
+        );
+        let mut c = cfg.clone();
+        c.controller = None;
+        assert!(err(&c, &arrays).contains("needs a controller block"));
+        let mut c = cfg.clone();
+        c.pose_form = Some("joints".into());
+        assert_eq!(
+            err(&c, &arrays),
+            "pose_form = \"joints\", expected \"absolute\" or \"dof_velocity\""
+        );
+        let mut c = cfg.clone();
+        c.out_slices.insert("u".into(), [2, 4]);
+        assert!(err(&c, &arrays).starts_with("out_slices.u = [2, 4], but the network output"));
+        c.out_slices.insert("u".into(), [2, 5]);
+        assert!(net_from_omg(&c, &arrays).is_ok());
+        c.normalisation = Some(OmgNormalisation {
+            rule: String::new(),
+            mean: None,
+            std: None,
+            dof_mean: None,
+            dof_std: Some(vec![0.5; 3]),
+        });
+        assert!(err(&c, &arrays).starts_with("normalisation.dof_std[0] = 0.5, but the weights'"));
+        let mut a = arrays.clone();
+        a.remove("norm.dof_std");
+        assert_eq!(err(&cfg, &a), "tensor \"norm.dof_std\" is missing");
+        let mut a = arrays.clone();
+        a.get_mut("norm.dof_mean").unwrap().shape = vec![4];
+        assert!(err(&cfg, &a).starts_with("tensor \"norm.dof_mean\" has shape [4], expected [3]"));
+        let mut a = arrays.clone();
+        a.get_mut("norm.dof_std").unwrap().data[0] = -1.0;
+        assert_eq!(
+            err(&cfg, &a),
+            "tensor \"norm.dof_std\" is negative at index 0"
+        );
+        // dec.2 of the pose's width instead of D rows.
+        let (_, abs) = tiny(13);
+        let mut a = arrays.clone();
+        a.insert("dec.2.w".into(), abs["dec.2.w"].clone());
+        assert_eq!(
+            err(&cfg, &a),
+            "tensor \"dec.2.w\" has shape [24, 5], expected [3, 5] (decoder 5 -> 3)"
+        );
+    }
+
+    /// `read_omg` names the file: the config's fields, the tensors of
+    /// `model.safetensors`.
+    #[test]
+    fn dof_refusals_name_the_file() {
+        let (cfg, arrays) = tiny_dof(14);
+        let tmp = tempfile::tempdir().unwrap();
+        let (w, c) = (
+            tmp.path().join("model.safetensors"),
+            tmp.path().join("config.json"),
+        );
+        let tensors: Vec<(&str, Vec<u64>, Vec<f32>)> = arrays
+            .iter()
+            .filter(|(k, _)| *k != "norm.dof_std")
+            .map(|(k, a)| {
+                (
+                    k.as_str(),
+                    a.shape.clone(),
+                    a.data.iter().map(|&v| v as f32).collect(),
+                )
+            })
+            .collect();
+        crate::cp::import::write_safetensors(&w, &tensors).unwrap();
+        let mut json = config_json(&cfg);
+        json["controller"]["skeleton"]["dofs"][1]["axis"] = serde_json::json!(7);
+        std::fs::write(&c, serde_json::to_string(&json).unwrap()).unwrap();
+        let e = format!("{:#}", read_omg(&w, &c).unwrap_err());
+        assert!(
+            e.ends_with("config.json: controller.skeleton.dofs[1].axis = 7, expected 0, 1 or 2"),
+            "{e}"
+        );
+        json["controller"]["skeleton"]["dofs"][1]["axis"] = serde_json::json!(0);
+        std::fs::write(&c, serde_json::to_string(&json).unwrap()).unwrap();
+        let e = format!("{:#}", read_omg(&w, &c).unwrap_err());
+        assert!(
+            e.ends_with("model.safetensors: tensor \"norm.dof_std\" is missing"),
+            "{e}"
+        );
+    }
+
+    /// `cfg` as a `config.json` would hold it.
+    fn config_json(cfg: &OmgConfig) -> serde_json::Value {
+        let s = &cfg.sizes;
+        let c = cfg.controller.as_ref().unwrap();
+        serde_json::json!({
+            "format": cfg.format, "variant": cfg.variant, "J": cfg.joints, "K": cfg.key,
+            "key_joint_indices": cfg.key_joint_indices, "model_width": cfg.model_width,
+            "sizes": {"ae_hidden": s.ae_hidden, "latent": s.latent, "cost_hidden": s.cost_hidden,
+                "expert_hidden": s.expert_hidden, "gate_hidden": s.gate_hidden,
+                "experts": s.experts, "dof": s.dof},
+            "slices": cfg.slices, "out_slices": cfg.out_slices,
+            "phase_update": {"a": cfg.phase_update.a}, "mode": cfg.mode,
+            "pose_form": cfg.pose_form,
+            "controller": {"fps": c.fps, "a_max": c.a_max, "skeleton": {
+                "parents": c.skeleton.parents, "offsets": c.skeleton.offsets,
+                "dofs": c.skeleton.dofs.iter().map(|d| serde_json::json!({
+                    "joint": d.joint, "axis": d.axis, "lower": d.lower, "upper": d.upper
+                })).collect::<Vec<_>>()}},
+        })
+    }
+
     fn err(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> String {
         format!("{:#}", net_from_omg(cfg, arrays).unwrap_err())
     }
@@ -1170,6 +1757,8 @@ pub(crate) mod tests {
             rule: String::new(),
             mean: Some(vec![0.0; c.model_width]),
             std: None,
+            dof_mean: None,
+            dof_std: None,
         });
         assert!(err(&c, &arrays)
             .starts_with("normalisation.mean[0] = 0, but the weights' norm.mean[0] = "));

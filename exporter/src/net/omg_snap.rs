@@ -42,7 +42,12 @@ fn places(omg: &OmgNet) -> Result<Vec<Place>> {
     };
     let cfg = &omg.config;
     let np = cfg.slice("phase").len();
-    let npose = cfg.slice("pose").len();
+    // The decoder's last layer's rows in `out`: the pose's, or a
+    // joint-velocity model's D.
+    let npose = omg
+        .dof
+        .as_ref()
+        .map_or_else(|| cfg.slice("pose").len(), |d| d.u.len());
     let nh = cfg.sizes.ae_hidden;
     let mut out = Vec::new();
     for (node, n) in g.nodes.iter().enumerate() {
@@ -206,7 +211,11 @@ pub fn to_safetensors(arrays: &BTreeMap<String, NpArray>) -> Result<Vec<u8>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::net::omg::{net_from_omg, tests::tiny, HEADROOM};
+    use crate::net::omg::{
+        net_from_omg,
+        tests::{tiny, tiny_dof},
+        HEADROOM,
+    };
     use crate::quantise::{quantise_net, QuantOptions};
 
     fn quantised(
@@ -228,9 +237,21 @@ mod tests {
             .fold(0.0, f64::max)
     }
 
+    /// An absolute and a joint-velocity model (whose `dec.2` fills `out`'s
+    /// D middle rows).
     #[test]
     fn snapping_reaches_a_model_whose_blob_holds_its_weights_exactly() {
-        let (cfg, mut arrays) = tiny(5);
+        for (cfg, arrays) in [tiny(5), tiny_dof(5)] {
+            snaps_to_a_fixed_point(&cfg, arrays);
+        }
+    }
+
+    fn snaps_to_a_fixed_point(
+        cfg: &crate::net::omg::OmgConfig,
+        mut arrays: BTreeMap<String, NpArray>,
+    ) {
+        let cfg = cfg.clone();
+        let std = arrays["norm.std"].clone();
         let mut moves = Vec::new();
         for _ in 0..6 {
             let (omg, q) = quantised(&cfg, &arrays);
@@ -284,7 +305,7 @@ mod tests {
                 );
             }
         }
-        assert_eq!(arrays["norm.std"], tiny(5).1["norm.std"]);
+        assert_eq!(arrays["norm.std"], std);
     }
 
     #[test]

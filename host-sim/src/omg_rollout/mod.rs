@@ -1,7 +1,8 @@
 //! OMG reaching rollouts driven by target scripts: `host-sim rollout --omg
 //! DIR --script SCRIPT` runs a model (its f64 graph, or a blob on the
 //! fixed-point runtime with `--model`) through the controller's reaching
-//! loop (`phasegate_controller::Reach`) from a rest frame, with the targets
+//! loop (`phasegate_controller::Reach`) from a rest frame (a joint-velocity
+//! model: from rest, `q = v = 0`), with the targets
 //! of a target script ([`script`]), of a committed reference clip
 //! (`ref:N`) or of a held-out clip of the generated data (`clip:N`), and
 //! records the rollout ([`record`]); `rollout-compare` and `render` take
@@ -16,7 +17,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Context, Result};
 use serde::Serialize;
 
-use crate::omg::{load_dir, rollout, FixedOmg, FloatOmg, Mode};
+use crate::omg::{load_dir, rollout, FixedOmg, FloatOmg, Mode, Start};
 pub use crate::omg_reach::CONTACT_RADIUS_M;
 use crate::omg_reach::{hand_targets, median, rms_roughness, HeldOut};
 use record::OmgRecord;
@@ -64,11 +65,17 @@ pub fn parents_of(rig_json: &[u8]) -> Result<Vec<i32>> {
         .collect()
 }
 
-/// The start frame and each frame's target block of `args.script`.
+/// Where the rollout of `args.script` starts and each frame's target
+/// block: `ref:N` from the reference clip's start, `clip:N` from the
+/// held-out clip's frame 0 (a joint-velocity model with its joint angles,
+/// [`crate::omg::Start::clip`]), a script from the rest frame of the
+/// model's first reference clip (absolute) or from rest (joint velocity:
+/// [`crate::omg::Start::rest`], the key joints the script does not name
+/// targeting their own rest pose) with the script's first targets.
 pub(crate) fn targets(
     args: &OmgRolloutArgs,
     d: &crate::omg::OmgDir,
-) -> Result<(Vec<f64>, Vec<Vec<f64>>)> {
+) -> Result<(Start, Vec<Vec<f64>>)> {
     let cfg = &d.omg.config;
     let tb = cfg.slice("target");
     let clip_index = |s: &str, n: usize, what: &str| -> Result<usize> {
@@ -92,7 +99,7 @@ pub(crate) fn targets(
             );
         }
         let blocks = (0..n).map(|t| refs.targets.row(c, t).to_vec()).collect();
-        (refs.inputs.row(c, 0).to_vec(), blocks)
+        (crate::omg::reference_start(d, c), blocks)
     } else if let Some(c) = args.script.strip_prefix("clip:") {
         let data = args
             .data
@@ -107,14 +114,23 @@ pub(crate) fn targets(
             bail!("{}: the clip has {} frames", args.script, clip.len());
         }
         let blocks = clip[..n].iter().map(|f| f[tb.clone()].to_vec()).collect();
-        (clip[0].clone(), blocks)
+        (held.start(&d.omg, c)?, blocks)
     } else {
         let s = TargetScript::load(&args.script)?;
         let n = args.frames.or(s.frames).unwrap_or(DEFAULT_FRAMES);
-        // The rest frame every committed model starts its references from.
-        let start = d.refs.inputs.row(0, 0).to_vec();
+        let (start, own) = match d.omg.dof {
+            // The rest frame every committed absolute model starts its
+            // references from.
+            None => {
+                let start = Start::frame(d.refs.inputs.row(0, 0));
+                let own = start.first[tb.clone()].to_vec();
+                (start, own)
+            }
+            // From rest; filled in with the first targets below.
+            Some(_) => (Start::frame(&[]), Start::rest_targets(&d.omg)?),
+        };
         let blocks = s
-            .blocks(cfg, &start[tb.clone()], n)
+            .blocks(cfg, &own, n)
             .with_context(|| args.script.clone())?;
         (start, blocks)
     };
@@ -122,7 +138,11 @@ pub(crate) fn targets(
         bail!("--frames must be at least 1");
     }
     let mut start = start;
-    start[tb].copy_from_slice(&blocks[0]);
+    if start.first.is_empty() {
+        start = Start::rest(&d.omg, &blocks[0])?
+            .context("an absolute model starts from a reference frame")?;
+    }
+    start.first[tb].copy_from_slice(&blocks[0]);
     Ok((start, blocks))
 }
 

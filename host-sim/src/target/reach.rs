@@ -5,7 +5,9 @@
 //!
 //! The targets are `host-sim rollout --omg`'s (a built-in or JSON target
 //! script, `ref:N` or `clip:N`, [`crate::omg_rollout`]); a hand's target is
-//! sent on the frames where it changes. The firmware is the `reach`
+//! sent on the frames where it changes. A joint-velocity model's plan also
+//! carries its skeleton and start state ([`DofPlan`]; from rest for a
+//! script). The firmware is the `reach`
 //! feature build ([`build_reach_firmware`]): both loops together do not fit
 //! the controller firmware's 64 KiB `.text` budget.
 
@@ -15,6 +17,7 @@ use std::time::Duration;
 
 use anyhow::{bail, ensure, Context, Result};
 use phasegate::{Model, Runtime};
+use phasegate_controller::reach::{PoseForm, Skeleton};
 use phasegate_controller::{CostMode, Reach, ReachLayout, Target};
 
 use super::build::build_reach_firmware;
@@ -47,8 +50,32 @@ pub struct ReachPlan {
     pub mode: CostMode,
     /// The first frame `X`.
     pub first: Vec<f32>,
+    /// A joint-velocity model's skeleton and start state.
+    pub dofs: Option<DofPlan>,
     /// Per step, each hand's new target.
     pub targets: Vec<[Option<Target<f32>>; HANDS]>,
+}
+
+/// The skeleton and start joint angles and velocities of a joint-velocity
+/// model's plan, as the device holds them (f32).
+#[derive(Clone, Debug)]
+pub struct DofPlan {
+    /// The rig.
+    pub skeleton: Skeleton<f32>,
+    /// Start joint angles, radians.
+    pub q0: Vec<f32>,
+    /// Start joint velocities, rad/s.
+    pub v0: Vec<f32>,
+}
+
+impl DofPlan {
+    fn wire(&self) -> wr::DofStart<'_> {
+        wr::DofStart {
+            skeleton: &self.skeleton,
+            q0: &self.q0,
+            v0: &self.v0,
+        }
+    }
 }
 
 /// Hand `h`'s target in a target block (K positions, then K forward + up
@@ -85,6 +112,15 @@ pub fn plan_from_script(
     };
     let (start, blocks) = targets(&args, &d)?;
     let layout = reach_layout(&d.omg)?;
+    let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+    let dofs = match &d.omg.dof {
+        None => None,
+        Some(form) => Some(DofPlan {
+            skeleton: crate::omg::skeleton(&form.skeleton)?,
+            q0: f32s(&start.q0),
+            v0: f32s(&start.v0),
+        }),
+    };
     let k = layout.key();
     ensure!(
         k >= HANDS,
@@ -103,7 +139,8 @@ pub fn plan_from_script(
     Ok(ReachPlan {
         layout,
         mode,
-        first: start.iter().map(|&v| v as f32).collect(),
+        first: f32s(&start.first),
+        dofs,
         targets,
     })
 }
@@ -112,8 +149,18 @@ pub fn plan_from_script(
 pub fn reach_image(plan: &ReachPlan, outputs: usize) -> Result<Vec<u8>> {
     let width = plan.first.len();
     let mut records = vec![0u8; wr::setup_len(width)];
-    wr::encode_setup(&plan.layout, plan.mode, &plan.first, &mut records)
-        .context("the layout has more key joints than the wire carries")?;
+    let dofs = plan.dofs.as_ref().map(DofPlan::wire);
+    wr::encode_setup(
+        &plan.layout,
+        plan.mode,
+        &plan.first,
+        dofs.as_ref(),
+        &mut records,
+    )
+    .context(
+        "the layout has more key joints than the wire carries, or its pose form and the plan's \
+         skeleton disagree",
+    )?;
     for t in &plan.targets {
         wr::encode_target_record(t, &mut records);
     }
@@ -140,9 +187,21 @@ pub fn host_frames(model: Model<'_>, plan: &ReachPlan) -> Result<(Vec<Vec<f32>>,
         Runtime::<'_, HOST_W, HOST_S, HOST_N>::new(model)
             .context("the host runtime refuses the model")?,
     );
+    let layout = plan.layout.clone();
     let mut state = Box::new(
-        Reach::<f32, DEVICE_WIDTH>::new(&*rt, plan.layout.clone(), plan.mode, &plan.first)
-            .context("Reach::new")?,
+        match &plan.dofs {
+            None => Reach::<f32, DEVICE_WIDTH>::new(&*rt, layout, plan.mode, &plan.first),
+            Some(d) => Reach::with_dofs(
+                &*rt,
+                layout,
+                plan.mode,
+                &plan.first,
+                d.skeleton.clone(),
+                &d.q0,
+                &d.v0,
+            ),
+        }
+        .context("Reach::new")?,
     );
     let mut frames = Vec::with_capacity(plan.targets.len());
     let mut outcomes = Vec::with_capacity(plan.targets.len());
@@ -170,9 +229,14 @@ pub fn host_frames(model: Model<'_>, plan: &ReachPlan) -> Result<(Vec<Vec<f32>>,
 
 /// Name of value `k` of a frame of `layout`.
 pub fn frame_field_name(layout: &ReachLayout, k: usize) -> String {
+    let vel = match &layout.pose {
+        PoseForm::DofVelocity { vel, .. } => vel.clone(),
+        PoseForm::Absolute => 0..0,
+    };
     for (name, r) in [
         ("pos", &layout.pos),
         ("rot", &layout.rot),
+        ("vel", &vel),
         ("cost", &layout.cost),
         ("target", &layout.target),
     ] {
@@ -623,5 +687,48 @@ mod tests {
         .unwrap();
         assert_eq!(out.0[10][t..t + 3], [0.35, 1.1, 0.25]);
         assert_eq!(out.0[9][t..t + 3], out.0[0][t..t + 3]);
+    }
+
+    /// A joint-velocity model (int8) from rest on the reach firmware under
+    /// QEMU: its skeleton and start state travel in the setup, and every
+    /// frame (FK pose included) and target outcome equals the host's
+    /// `Reach<f32>`, a refused target included; within budget. Skipped
+    /// without QEMU or a joint-velocity model (`omg::tests::dof_model`).
+    #[test]
+    fn a_dof_model_on_qemu_is_bit_exact_with_the_host_loop() {
+        if !qemu_available() {
+            eprintln!(
+                "SKIPPED a_dof_model_on_qemu_is_bit_exact_with_the_host_loop: no qemu-system-arm"
+            );
+            return;
+        }
+        let Some(dir) = crate::omg::tests::dof_model() else {
+            return;
+        };
+        let d = load_dir(&dir).unwrap();
+        let i8 = phasegate::blob::WeightFormat::I8;
+        let blob = crate::omg::export(&d, i8, &crate::omg::exporter_options(i8)).unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("dof.blob");
+        std::fs::write(&path, &blob).unwrap();
+        let mut plan = plan_from_script(&dir, "reach-front", None, 20, CostMode::Grounded).unwrap();
+        let dofs = plan.dofs.as_ref().expect("a joint-velocity plan");
+        assert!(
+            dofs.q0.iter().chain(&dofs.v0).all(|&v| v == 0.0),
+            "from rest"
+        );
+        plan.targets[5][1] = Some(Target {
+            position: [0.0, 1.0, f32::INFINITY],
+            forward: [0.0, 0.0, 1.0],
+            up: [0.0, 1.0, 0.0],
+        });
+        let r = execute_plan(&path, "reach-front + a refused target", &plan).unwrap();
+        assert!(r.bit_exact(), "{}", r.render());
+        assert_eq!(r.refused, vec![(5, 1, 2)]);
+        assert_eq!(r.budget_verdict(), "within budget", "{}", r.render());
+        assert!(r
+            .log
+            .iter()
+            .any(|l| l.contains("joint-velocity model: 31 joints, 30 DOFs")));
     }
 }

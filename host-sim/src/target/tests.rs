@@ -76,7 +76,7 @@ fn input_image_round_trips_and_rejects_damage() {
     assert_eq!(h.record_len(), 8 + 4 + 4 * 2);
     assert_eq!(records.len(), 3 * h.record_len());
     // The version and the record length are where the doc table says.
-    assert_eq!(&image[4..6], &2u16.to_le_bytes());
+    assert_eq!(&image[4..6], &3u16.to_le_bytes());
     assert_eq!(&image[20..24], &20u32.to_le_bytes());
     let mut x = [0f32; 2];
     for (i, r) in records.chunks_exact(h.record_len()).enumerate() {
@@ -114,13 +114,16 @@ fn input_image_round_trips_and_rejects_damage() {
         wire::InputHeader::parse(&bad),
         Err(wire::WireError::UnsupportedVersion(9))
     );
-    // A version-1 image (records without a mix field) is refused.
-    let mut bad = image.clone();
-    bad[4] = 1;
-    assert_eq!(
-        wire::InputHeader::parse(&bad),
-        Err(wire::WireError::UnsupportedVersion(1))
-    );
+    // A version-1 image (records without a mix field) and a version-2
+    // one (a reach setup without the pose-form section) are refused.
+    for v in [1, 2] {
+        let mut bad = image.clone();
+        bad[4] = v;
+        assert_eq!(
+            wire::InputHeader::parse(&bad),
+            Err(wire::WireError::UnsupportedVersion(u16::from(v)))
+        );
+    }
     let mut bad = image;
     bad[20] ^= 4;
     assert_eq!(

@@ -1,6 +1,6 @@
 """The rig's forward kinematics in PyTorch, and the OMG frame built from joint angles.
 
-A model with a joint-angle output (``pose_form`` "dof" in its config) changes the rig's
+A model with a joint-angle output (``pose_form`` "dof_velocity" in its config) changes the rig's
 DOF values ``q`` every frame; the controller clamps them to the joint limits and rebuilds
 the frame's pose block by forward kinematics, so every bone keeps its length and every
 joint its limits by construction. This module is that rebuild, differentiable and
