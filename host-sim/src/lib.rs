@@ -15,6 +15,7 @@ pub mod omg;
 pub mod omg_reach;
 pub mod omg_rollout;
 pub mod quant_knobs;
+pub mod reach_metrics;
 pub mod render;
 pub mod rollout;
 pub mod saturation;

@@ -71,9 +71,12 @@ enum Command {
         /// Frames to run (--pfnn).
         #[arg(long, default_value_t = 300)]
         frames: usize,
-        /// Where to write the picture of the reaching run.
+        /// Where to write the picture of the reaching run (front and side views).
         #[arg(long, default_value = "target/phasegate-demo/omg-reach.png")]
         picture: PathBuf,
+        /// Where to write the animation of the reaching run (every 3rd frame).
+        #[arg(long, default_value = "target/phasegate-demo/omg-reach.gif")]
+        gif: PathBuf,
         /// Do not run the blob on the Cortex-M4 under QEMU.
         #[arg(long)]
         no_target: bool,
@@ -96,8 +99,10 @@ enum Command {
         int8: host_sim::quant_knobs::Int8Knobs,
     },
     /// OMG models reaching (docs/omg.md): grounded rollouts of the rig's
-    /// held-out clips in f64 and as int16 and int8 blobs; reach success,
-    /// frames to reach, final distance, joint error, roughness, and the
+    /// held-out clips (and with --scripts the target scripts) in f64 and as
+    /// int16 and int8 blobs, beside the data and holding still; targets
+    /// (near start apart), reach and plausible reach, frames to reach,
+    /// final distance, bone-length error, roughness, joint error, and the
     /// blobs' joint difference to the f64 rollout.
     OmgReach {
         /// Model directories (model.safetensors, config.json, references.npz).
@@ -137,6 +142,11 @@ enum Command {
         /// Seeds of each --input-noise amount.
         #[arg(long, value_name = "N", default_value_t = 4)]
         noise_seeds: u64,
+        /// Also run every target script of DIR (`tools/omg/scripts` is the
+        /// committed set; R1 joint-velocity models, from rest): the same
+        /// rows summed over the scripts, and each `unreachable` target.
+        #[arg(long, value_name = "DIR")]
+        scripts: Option<PathBuf>,
     },
     /// OMG models (docs/omg.md): the f64 graph forward vs the committed
     /// PyTorch references, and int16 / int8 blobs vs the f64 forward, one
@@ -358,10 +368,11 @@ fn run(cli: Cli) -> Result<()> {
             pfnn,
             frames,
             picture,
+            gif,
             no_target,
         } => {
             let Some(dir) = pfnn else {
-                let d = host_sim::demo_omg::run_demo(Some(&picture), no_target)?;
+                let d = host_sim::demo_omg::run_demo(Some(&picture), Some(&gif), no_target)?;
                 print!("{}", d.render());
                 return Ok(());
             };
@@ -404,6 +415,7 @@ fn run(cli: Cli) -> Result<()> {
             train_clips,
             input_noise,
             noise_seeds,
+            scripts,
         } => {
             let opts = exporter::quantise::QuantOptions {
                 headroom,
@@ -412,11 +424,12 @@ fn run(cli: Cli) -> Result<()> {
             let mut all = Vec::new();
             for d in &dirs {
                 let judged = host_sim::omg_reach::Judged::new(d, &data, train_clips)?;
-                let mut r = host_sim::omg_reach::measure_judged(
+                let mut r = host_sim::omg_reach::measure_with_scripts(
                     &judged,
                     &opts,
                     &int8,
                     motion_from.as_deref(),
+                    scripts.as_deref(),
                 )?;
                 r.rows.extend(host_sim::omg_reach::input_noise_rows(
                     &judged,

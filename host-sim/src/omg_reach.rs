@@ -1,18 +1,32 @@
 //! `host-sim omg-reach`: the OMG models reaching on the held-out clips of
-//! their rig, in f64 and as int16 and int8 blobs on the host runtime.
+//! their rig and on the hand-written target scripts, in f64 and as int16
+//! and int8 blobs (or rig blobs) on the host runtime, judged by the
+//! metrics of [`crate::reach_metrics`] (the definitions of
+//! `tools/omg/metrics.py`; `tools/omg/evaluate.py` applies them the same
+//! way, so the f64 figures can be checked against its output).
 //!
-//! Every clip is rolled out grounded from its frame 0 for its 300 frames
-//! (a joint-velocity model with that frame's joint angles from the data's
-//! `dof` block and `v0 = q0 * fps`),
-//! driven only by the data's targets (as `tools/omg/evaluate.py` does, so
-//! the f64 figures can be checked against `models/omg/eval.json`). Per
-//! spawned hand target (the first `reps` constant-target intervals of each
-//! hand; the return to rest is not counted): reached when the hand gets
-//! within [`CONTACT_RADIUS_M`] before the data's next target is due, frames
-//! from spawn to the first such frame, and the distance on the target's
-//! last frame. Beside them the joint position error against the data and
-//! the RMS roughness (spec §3.5, eq 3.9 in the author's code's form), and,
-//! for the blobs, the joint position difference to the f64 rollout.
+//! **Held-out clips.** Every clip is rolled out grounded from its frame 0
+//! for its 300 frames (a joint-velocity model with that frame's joint
+//! angles from the data's `dof` block and `v0 = q0 * fps`), driven only by
+//! the data's targets. The hand targets are each hand's first `spawned[h]`
+//! constant-target intervals (`clips.json`; `reps` for data written before
+//! `spawned`). Rows: the data itself, holding frame 0 still, f64, the
+//! blobs (and any input-noise rows).
+//!
+//! **Target scripts** (`--scripts DIR`, R1 joint-velocity models): every
+//! `*.json` of `DIR` but `expected.json` (`tools/omg/scripts` is the
+//! committed set), each rolled out from rest for its own length, its frame-0
+//! target block in the start frame ([`crate::omg_rollout::script_start`]),
+//! the hand targets of [`TargetScript::intervals`]; the one marked
+//! `unreachable` is reported apart ([`crate::reach_metrics::unreachable`]).
+//! Rows: holding the rest frame still, f64, the blobs, summed over all
+//! scripts.
+//!
+//! Every row: targets (and those the hand started within reach of, counted
+//! apart), reach and plausible reach, frames to a plausible reach, final
+//! distance, bone-length error p50 / p99, roughness; the joint position
+//! error against the data (held-out clips) and, for the blobs, the joint
+//! position difference to the f64 rollout.
 
 use std::path::{Path, PathBuf};
 
@@ -21,20 +35,25 @@ use phasegate::blob::WeightFormat;
 use serde::Serialize;
 
 use crate::omg::{diff, load_dir, rollout, Diff, FixedOmg, FloatOmg, Mode, OmgDir, Start};
+use crate::omg_rollout::script::{TargetScript, DEFAULT_FRAMES};
 use crate::quant_knobs::Int8Knobs;
+use crate::reach_metrics::{
+    clip_intervals, script_intervals, unreachable, Bones, FrameLayout, HandTarget, ReachCounts,
+    ReachSummary, Unreachable,
+};
 use crate::saturation::{saturated, Saturation};
-use exporter::net::omg::OmgConfig;
+use exporter::net::omg::{OmgConfig, OmgNet};
 use exporter::quantise::{QuantOptions, Recorded};
 
-/// The data's contact threshold: a hand this close to its target reached it.
-pub const CONTACT_RADIUS_M: f64 = 0.1;
+pub use crate::reach_metrics::{median, CONTACT_RADIUS_M};
 
 /// The held-out clips of one rig: its test and validation splits.
 pub struct HeldOut {
     /// `(clip, frame)` rows of the model's width.
     pub clips: Vec<Vec<Vec<f64>>>,
-    /// Hand targets spawned per hand in each clip (`clips.json` `reps`).
-    pub reps: Vec<usize>,
+    /// Hand targets spawned per hand in each clip (`clips.json`
+    /// `spawned`, or `reps` for both hands where it has no `spawned`).
+    pub spawned: Vec<[usize; 2]>,
     /// Each clip's joint angles at frame 0 (the data's `dof` block,
     /// `layout.json`), where the data has them.
     pub q0: Vec<Option<Vec<f64>>>,
@@ -42,7 +61,7 @@ pub struct HeldOut {
 
 impl HeldOut {
     /// Where clip `c`'s rollout of `omg` starts ([`Start::clip`]).
-    pub fn start(&self, omg: &exporter::net::omg::OmgNet, c: usize) -> Result<Start> {
+    pub fn start(&self, omg: &OmgNet, c: usize) -> Result<Start> {
         Start::clip(omg, &self.clips[c][0], self.q0[c].as_deref())
     }
 }
@@ -83,7 +102,10 @@ fn clip_q0(
 struct ClipMeta {
     split: String,
     row: usize,
-    reps: usize,
+    #[serde(default)]
+    reps: Option<usize>,
+    #[serde(default)]
+    spawned: Option<[usize; 2]>,
 }
 
 impl HeldOut {
@@ -111,7 +133,7 @@ impl HeldOut {
         let dof = dof_columns(&dir)?;
         let mut out = HeldOut {
             clips: Vec::new(),
-            reps: Vec::new(),
+            spawned: Vec::new(),
             q0: Vec::new(),
         };
         for &split in splits {
@@ -127,14 +149,19 @@ impl HeldOut {
                 bail!("{}: width {w}, the model needs {width}", path.display());
             }
             for c in 0..n.min(limit) {
-                let reps = meta
+                let m = meta
                     .iter()
                     .find(|m| m.split == split && m.row == c)
                     .with_context(|| {
                         format!("{}: no {split} clip with row {c}", meta_path.display())
-                    })?
-                    .reps;
-                out.reps.push(reps);
+                    })?;
+                let spawned = m.spawned.or(m.reps.map(|r| [r, r])).with_context(|| {
+                    format!(
+                        "{}: {split} clip {c} has neither \"spawned\" nor \"reps\"",
+                        meta_path.display()
+                    )
+                })?;
+                out.spawned.push(spawned);
                 out.clips.push(clip_rows(&data, c, t, w, width));
                 out.q0.push(clip_q0(&data, c, t, w, &dof));
             }
@@ -156,119 +183,153 @@ fn clip_rows(data: &[f32], c: usize, t: usize, w: usize, width: usize) -> Vec<Ve
         .collect()
 }
 
-/// `[start, end)` of the first `reps` constant-target intervals of one
-/// hand's target positions.
-pub fn hand_targets(tpos: &[[f64; 3]], reps: usize) -> Vec<(usize, usize)> {
-    let mut bounds = vec![0];
-    for t in 1..tpos.len() {
-        let moved = (0..3)
-            .map(|d| (tpos[t][d] - tpos[t - 1][d]).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        if moved > 1e-6 {
-            bounds.push(t);
+/// The key joints' target positions on every frame (`[t][k]`) of frames
+/// holding a target block.
+pub fn target_positions(cfg: &OmgConfig, frames: &[Vec<f64>]) -> Vec<Vec<[f64; 3]>> {
+    let tp = cfg.slice("target_pos").start;
+    frames
+        .iter()
+        .map(|f| {
+            (0..cfg.key)
+                .map(|k| [f[tp + 3 * k], f[tp + 3 * k + 1], f[tp + 3 * k + 2]])
+                .collect()
+        })
+        .collect()
+}
+
+/// The key joints' target positions on every frame of target blocks (K
+/// positions first).
+pub fn block_positions(cfg: &OmgConfig, blocks: &[Vec<f64>]) -> Vec<Vec<[f64; 3]>> {
+    blocks
+        .iter()
+        .map(|b| {
+            (0..cfg.key)
+                .map(|k| [b[3 * k], b[3 * k + 1], b[3 * k + 2]])
+                .collect()
+        })
+        .collect()
+}
+
+/// The bones and rest lengths of `omg`'s rig: a joint-velocity model's
+/// `controller.skeleton`, else `data/<rig>/rig.json`, else the model
+/// directory's `rig.json`.
+pub fn rest_bones(omg: &OmgNet, dir: &Path, data: &Path, rig: &str) -> Result<Bones> {
+    if let Some(form) = &omg.dof {
+        let sk = &form.skeleton;
+        return Bones::new(&sk.parents, &sk.offsets).context("controller.skeleton");
+    }
+    for path in [data.join(rig).join("rig.json"), dir.join("rig.json")] {
+        if let Ok(bytes) = std::fs::read(&path) {
+            return Bones::from_rig_json(&bytes).with_context(|| format!("{}", path.display()));
         }
     }
-    bounds.push(tpos.len());
-    bounds.windows(2).map(|w| (w[0], w[1])).take(reps).collect()
+    bail!(
+        "no rest bone lengths for {}: an absolute model needs {} or {}",
+        dir.display(),
+        data.join(rig).join("rig.json").display(),
+        dir.join("rig.json").display()
+    )
 }
 
-/// Per target: reached, frames to reach, last-frame distance.
-#[derive(Clone, Debug, Default)]
-pub struct TargetStats {
-    /// Whether each target was reached in time.
-    pub reached: Vec<bool>,
-    /// Frames from spawn to the first frame within reach, reached targets.
-    pub frames: Vec<usize>,
-    /// Hand-target distance on each target's last frame, metres.
-    pub final_m: Vec<f64>,
-}
-
-/// [`TargetStats`] of one clip's frames `y` against the clip's own targets.
-pub fn reach_stats(
-    cfg: &OmgConfig,
-    y: &[Vec<f64>],
-    clip: &[Vec<f64>],
-    reps: usize,
-    s: &mut TargetStats,
-) {
-    let (pos, tpos) = (cfg.slice("pos"), cfg.slice("target_pos"));
-    for h in 0..2.min(cfg.key) {
-        let j = cfg.key_joint_indices[h];
-        let targets: Vec<[f64; 3]> = clip
-            .iter()
-            .map(|f| std::array::from_fn(|k| f[tpos.start + 3 * h + k]))
-            .collect();
-        let dist: Vec<f64> = y
-            .iter()
-            .zip(&targets)
-            .map(|(f, t)| {
-                (0..3)
-                    .map(|k| (f[pos.start + 3 * j + k] - t[k]).powi(2))
-                    .sum::<f64>()
-                    .sqrt()
-            })
-            .collect();
-        for (a, b) in hand_targets(&targets, reps) {
-            let hit = dist[a..b].iter().position(|&v| v < CONTACT_RADIUS_M);
-            s.reached.push(hit.is_some());
-            s.frames.extend(hit);
-            s.final_m.push(dist[b - 1]);
-        }
-    }
-}
-
-/// `sqrt(mean_t dr_t^2)` of one clip: dr_t the mean over joints and over
-/// the forward and up vectors of the angle between frames t and t + 1.
-pub fn rms_roughness(cfg: &OmgConfig, y: &[Vec<f64>]) -> f64 {
-    let rot = cfg.slice("rot");
-    let unit = |v: &[f64]| {
-        let n = v.iter().map(|a| a * a).sum::<f64>().sqrt().max(1e-8);
-        [v[0] / n, v[1] / n, v[2] / n]
-    };
-    let mut sq = 0.0;
-    for w in y.windows(2) {
-        let (a, b) = (&w[0][rot.clone()], &w[1][rot.clone()]);
-        let vectors = a.len() / 3;
-        let mut sum = 0.0;
-        for v in 0..vectors {
-            let (p, q) = (unit(&a[3 * v..3 * v + 3]), unit(&b[3 * v..3 * v + 3]));
-            let c: f64 = (0..3).map(|k| p[k] * q[k]).sum();
-            sum += c.clamp(-1.0, 1.0).acos();
-        }
-        let dr = sum / vectors as f64;
-        sq += dr * dr;
-    }
-    (sq / (y.len() - 1).max(1) as f64).sqrt()
-}
-
-/// One way of running a model, on every held-out clip.
+/// One way of running a model, on every clip (or every script).
 #[derive(Clone, Debug, Serialize)]
 pub struct ReachRow {
-    /// "data", "f64", "int16" or "int8".
+    /// "data", "hold still", "f64", "int16", "int8", "int16 rig", "int8
+    /// rig" or an input-noise row's name.
     pub run: String,
-    /// Blob bytes (0 for data and f64).
+    /// Blob bytes (the rig blob's for rig blobs; 0 for the others).
     pub blob_bytes: usize,
-    /// Share of the spawned hand targets reached in time.
-    pub reach: f64,
-    /// Targets.
+    /// Hand targets counted (the hand started farther than
+    /// [`CONTACT_RADIUS_M`] from them).
     pub targets: usize,
-    /// Median frames from spawn to reach, reached targets.
+    /// Hand targets the hand started within reach of (not counted).
+    pub near_start: usize,
+    /// Share of the counted targets reached.
+    pub reach: f64,
+    /// Share plausibly reached (every bone within 1 cm of its rest length
+    /// on the frame within reach).
+    pub plausible_reach: f64,
+    /// Median frames from a target's start to its first plausible reach.
     pub frames_median: Option<f64>,
-    /// Mean last-frame distance, metres.
+    /// Mean distance on the targets' last frames, metres.
     pub final_m: f64,
-    /// Mean joint position error against the data, cm.
-    pub joint_vs_data_cm: f64,
-    /// RMS roughness, radians per frame, mean over clips.
+    /// Median bone-length error over every bone and frame, cm.
+    pub bone_err_p50_cm: f64,
+    /// 99th percentile of the bone-length error, cm.
+    pub bone_err_p99_cm: f64,
+    /// Roughness (RMS over frames of the mean joint rotation change),
+    /// radians per frame, mean over clips (JSON `roughness`, as
+    /// `metrics.py` names it).
+    #[serde(rename = "roughness")]
     pub rms: f64,
-    /// Against the f64 rollout (blobs only).
+    /// Mean joint position error against the data, cm (NaN on the target
+    /// scripts, which have no data; left out of the JSON there).
+    #[serde(skip_serializing_if = "is_nan")]
+    pub joint_vs_data_cm: f64,
+    /// Against the f64 rollout (blobs and input-noise rows only).
     pub vs_f64: Option<Diff>,
     /// The blob's rows that the f64 rollout's frames drive beyond their
-    /// format's range (blobs only; empty: none).
+    /// format's range (blobs on the held-out clips only; empty: none).
     pub saturated: Option<Saturation>,
     /// The input noise of an [`input_noise_rows`] row (share of each
     /// feature's std).
     pub input_noise: Option<f64>,
+}
+
+impl ReachRow {
+    /// A row of `s`'s figures.
+    fn new(run: &str, blob_bytes: usize, s: ReachSummary, joint_vs_data_cm: f64) -> ReachRow {
+        ReachRow {
+            run: run.into(),
+            blob_bytes,
+            targets: s.targets,
+            near_start: s.near_start,
+            reach: s.reach,
+            plausible_reach: s.plausible_reach,
+            frames_median: s.frames_median,
+            final_m: s.final_m,
+            bone_err_p50_cm: s.bone_err_p50_cm,
+            bone_err_p99_cm: s.bone_err_p99_cm,
+            rms: s.roughness,
+            joint_vs_data_cm,
+            vs_f64: None,
+            saturated: None,
+            input_noise: None,
+        }
+    }
+}
+
+fn is_nan(v: &f64) -> bool {
+    v.is_nan()
+}
+
+/// One `unreachable` script target in one run.
+#[derive(Clone, Debug, Serialize)]
+pub struct UnreachableRow {
+    /// The run ("f64", "int8", ...).
+    pub run: String,
+    /// The script's file stem.
+    pub script: String,
+    /// How the hand did.
+    #[serde(flatten)]
+    pub report: Unreachable,
+}
+
+/// The rows on the target scripts.
+#[derive(Clone, Debug, Serialize)]
+pub struct ScriptsReach {
+    /// The scripts' directory.
+    pub dir: String,
+    /// The scripts run (file stems, sorted).
+    pub scripts: Vec<String>,
+    /// Frames over all scripts.
+    pub frames: usize,
+    /// Hold still, f64 and the blobs, summed over the scripts.
+    pub rows: Vec<ReachRow>,
+    /// Every run on every `unreachable` target.
+    pub unreachable: Vec<UnreachableRow>,
+    /// Why no rows were measured (not an R1 joint-velocity model).
+    pub skipped: Option<String>,
 }
 
 /// `host-sim omg-reach`'s figures for one model.
@@ -282,59 +343,26 @@ pub struct OmgReach {
     pub clips: usize,
     /// Which: `"held-out"` (test and validation) or `"training"`.
     pub split: String,
-    /// Data, f64, int16, int8 (or the rig blobs).
+    /// Data, hold still, f64, int16, int8 (or the rig blobs).
     pub rows: Vec<ReachRow>,
+    /// The rows on the target scripts (`--scripts`).
+    pub scripts: Option<ScriptsReach>,
 }
 
-/// The median of `v`; `None` when empty.
-pub fn median(v: &[usize]) -> Option<f64> {
-    let mut v = v.to_vec();
-    v.sort_unstable();
-    let n = v.len();
-    match n {
-        0 => None,
-        _ if n % 2 == 1 => Some(v[n / 2] as f64),
-        _ => Some((v[n / 2 - 1] + v[n / 2]) as f64 / 2.0),
-    }
-}
-
-fn mean(v: impl IntoIterator<Item = f64>) -> f64 {
-    let (s, n) = v
-        .into_iter()
-        .fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
-    s / n.max(1) as f64
-}
-
-fn row(d: &OmgDir, run: &str, blob_bytes: usize, held: &HeldOut, ys: &[Vec<Vec<f64>>]) -> ReachRow {
-    let mut s = TargetStats::default();
-    for ((y, clip), &reps) in ys.iter().zip(&held.clips).zip(&held.reps) {
-        reach_stats(&d.omg.config, y, clip, reps, &mut s);
-    }
-    let pos = d.omg.config.slice("pos");
-    let joint_err = ys.iter().zip(&held.clips).flat_map(|(y, c)| {
-        let pos = pos.clone();
+/// Mean joint position error between two sets of clips' frames, metres.
+fn joint_error(pos: &std::ops::Range<usize>, ys: &[Vec<Vec<f64>>], clips: &[Vec<Vec<f64>>]) -> f64 {
+    let errs = ys.iter().zip(clips).flat_map(|(y, c)| {
         y.iter().zip(c).flat_map(move |(a, b)| {
             (0..pos.len() / 3).map(move |j| {
+                let p = pos.start + 3 * j;
                 (0..3)
-                    .map(|k| (a[pos.start + 3 * j + k] - b[pos.start + 3 * j + k]).powi(2))
+                    .map(|k| (a[p + k] - b[p + k]).powi(2))
                     .sum::<f64>()
                     .sqrt()
             })
         })
     });
-    ReachRow {
-        run: run.into(),
-        blob_bytes,
-        reach: mean(s.reached.iter().map(|&r| f64::from(u8::from(r)))),
-        targets: s.reached.len(),
-        frames_median: median(&s.frames),
-        final_m: mean(s.final_m.iter().copied()),
-        joint_vs_data_cm: 100.0 * mean(joint_err),
-        rms: mean(ys.iter().map(|y| rms_roughness(&d.omg.config, y))),
-        vs_f64: None,
-        saturated: None,
-        input_noise: None,
-    }
+    crate::reach_metrics::mean(errs)
 }
 
 /// Grounded rollouts of every clip of `held` by `net` (`what` names it on
@@ -398,7 +426,7 @@ pub fn train_rollouts(d: &OmgDir, data: &Path, rig: &str, n: usize) -> Result<Re
     let dof = dof_columns(&data.join(rig))?;
     let train = HeldOut {
         clips: (0..n).map(|c| clip_rows(&values, c, t, w, width)).collect(),
-        reps: vec![0; n],
+        spawned: vec![[0, 0]; n],
         q0: (0..n).map(|c| clip_q0(&values, c, t, w, &dof)).collect(),
     };
     let inputs: Vec<Vec<f64>> = rollouts(d, &train, &mut FloatOmg(&d.omg), "f64 (calibration)")?
@@ -438,6 +466,12 @@ pub struct Judged {
     rig: String,
     held: HeldOut,
     float: Vec<Vec<Vec<f64>>>,
+    layout: FrameLayout,
+    bones: Bones,
+    /// Per clip, the hands' target positions on every frame.
+    targets: Vec<Vec<Vec<[f64; 3]>>>,
+    /// Per clip, its counted hand targets.
+    intervals: Vec<Vec<HandTarget>>,
 }
 
 impl Judged {
@@ -451,16 +485,42 @@ impl Judged {
             Some(0) => bail!("--train-clips 0: judge on at least one training clip"),
             Some(n) => HeldOut::read_splits(data, &rig, width, &["train"], n)?,
         };
+        let bones = rest_bones(&d.omg, dir, data, &rig)?;
+        let cfg = &d.omg.config;
+        let targets: Vec<_> = held
+            .clips
+            .iter()
+            .map(|c| target_positions(cfg, c))
+            .collect();
+        let intervals = targets
+            .iter()
+            .zip(&held.spawned)
+            .map(|(t, &s)| clip_intervals(t, s))
+            .collect();
         let float = rollouts(&d, &held, &mut FloatOmg(&d.omg), "f64")?;
         Ok(Judged {
             dir: dir.to_path_buf(),
             data: data.to_path_buf(),
             train_clips,
+            layout: FrameLayout::of(cfg),
+            bones,
+            targets,
+            intervals,
             d,
             rig,
             held,
             float,
         })
+    }
+
+    /// The row of rollouts `ys` of every clip.
+    fn row(&self, run: &str, blob_bytes: usize, ys: &[Vec<Vec<f64>>]) -> ReachRow {
+        let mut c = ReachCounts::default();
+        for ((y, t), iv) in ys.iter().zip(&self.targets).zip(&self.intervals) {
+            c.add_clip(y, t, iv, &self.layout, &self.bones);
+        }
+        let joint = joint_error(&self.layout.pos, ys, &self.held.clips);
+        ReachRow::new(run, blob_bytes, c.summary(), 100.0 * joint)
     }
 }
 
@@ -494,31 +554,39 @@ pub fn measure_judged(
     int8: &Int8Knobs,
     motion_from: Option<&Path>,
 ) -> Result<OmgReach> {
-    let Judged {
-        dir,
-        data,
-        train_clips,
-        d,
-        rig,
-        held,
-        float,
-    } = j;
-    let mut rows = vec![
-        row(d, "data", 0, held, &held.clips),
-        row(d, "f64", 0, held, float),
-    ];
-    let flat = |v: &[Vec<Vec<f64>>]| v.concat();
-    let mut run = |name: &str, fx: &mut FixedOmg<'_>, bytes: usize| -> Result<()> {
-        let ys = rollouts(d, held, fx, name)?;
-        let mut r = row(d, name, bytes, held, &ys);
-        r.vs_f64 = Some(diff(&d.omg, &flat(&ys), &flat(float)));
-        r.saturated = Some(exporter::progress::during(
-            &format!("checking {name}'s ranges on the f64 frames"),
-            || saturated(fx.model(), &d.omg.net, &flat(float)),
-        )?);
-        rows.push(r);
-        Ok(())
-    };
+    measure_with_scripts(j, opts, int8, motion_from, None)
+}
+
+/// A blob (or a motion blob and a rig blob) to judge.
+struct Deployment {
+    name: &'static str,
+    blob: Vec<u8>,
+    rig: Option<Vec<u8>>,
+}
+
+impl Deployment {
+    fn net(&self) -> Result<FixedOmg<'_>> {
+        match &self.rig {
+            None => FixedOmg::new(&self.blob),
+            Some(r) => FixedOmg::with_rig(&self.blob, r),
+        }
+    }
+
+    /// The blob's bytes (the rig blob's for a pair).
+    fn bytes(&self) -> usize {
+        self.rig.as_ref().map_or(self.blob.len(), Vec::len)
+    }
+}
+
+/// The int16 and int8 blobs of `j`'s model, or with `motion_from` its rig
+/// blobs against that model's motion blobs.
+fn deployments(
+    j: &Judged,
+    opts: &QuantOptions,
+    int8: &Int8Knobs,
+    motion_from: Option<&Path>,
+) -> Result<Vec<Deployment>> {
+    let (d, dir) = (&j.d, &j.dir);
     match motion_from {
         None => {
             let int16 = exporter::progress::during("exporting the int16 blob", || {
@@ -530,12 +598,21 @@ pub fn measure_judged(
             };
             let recorded = int8
                 .calibration_clips
-                .map(|n| train_rollouts(d, data, rig, n))
+                .map(|n| train_rollouts(d, &j.data, &j.rig, n))
                 .transpose()?;
             let (int8, _) = int8.export_with(&d.omg.net, None, int8_opts, recorded)?;
-            for (name, blob) in [("int16", &int16), ("int8", &int8)] {
-                run(name, &mut FixedOmg::new(blob)?, blob.len())?;
-            }
+            Ok(vec![
+                Deployment {
+                    name: "int16",
+                    blob: int16,
+                    rig: None,
+                },
+                Deployment {
+                    name: "int8",
+                    blob: int8,
+                    rig: None,
+                },
+            ])
         }
         Some(m) => {
             if int8.is_set() {
@@ -543,6 +620,7 @@ pub fn measure_judged(
             }
             let source = load_dir(m)?;
             let mask = exporter::rig::rig_mask(&d.omg.net, &exporter::rig::OMG_RIG_NODES)?;
+            let mut out = Vec::new();
             for (name, w) in [
                 ("int16 rig", WeightFormat::I16),
                 ("int8 rig", WeightFormat::I8),
@@ -556,26 +634,208 @@ pub fn measure_judged(
                     exporter::rig::export_rig(&d.omg.net, &motion, mask, "rig", &rig_opts)
                 })
                 .with_context(|| format!("{} against {}'s blob", dir.display(), m.display()))?;
-                run(
+                out.push(Deployment {
                     name,
-                    &mut FixedOmg::with_rig(&motion, &rig_blob)?,
-                    rig_blob.len(),
-                )?;
+                    blob: motion,
+                    rig: Some(rig_blob),
+                });
             }
+            Ok(out)
         }
     }
+}
+
+/// [`measure_judged`], and with `scripts` the same deployments on every
+/// target script of that directory ([`ScriptsReach`]).
+pub fn measure_with_scripts(
+    j: &Judged,
+    opts: &QuantOptions,
+    int8: &Int8Knobs,
+    motion_from: Option<&Path>,
+    scripts: Option<&Path>,
+) -> Result<OmgReach> {
+    let (d, held, float) = (&j.d, &j.held, &j.float);
+    let hold: Vec<Vec<Vec<f64>>> = held
+        .clips
+        .iter()
+        .map(|c| vec![c[0].clone(); c.len()])
+        .collect();
+    let mut rows = vec![
+        j.row("data", 0, &held.clips),
+        j.row("hold still", 0, &hold),
+        j.row("f64", 0, float),
+    ];
+    let flat_float = float.concat();
+    let deployed = deployments(j, opts, int8, motion_from)?;
+    for dep in &deployed {
+        let mut fx = dep.net()?;
+        let ys = rollouts(d, held, &mut fx, dep.name)?;
+        let mut r = j.row(dep.name, dep.bytes(), &ys);
+        r.vs_f64 = Some(diff(&d.omg, &ys.concat(), &flat_float));
+        r.saturated = Some(exporter::progress::during(
+            &format!("checking {}'s ranges on the f64 frames", dep.name),
+            || saturated(fx.model(), &d.omg.net, &flat_float),
+        )?);
+        rows.push(r);
+    }
+    let scripts = scripts
+        .map(|dir| measure_scripts(j, dir, &deployed))
+        .transpose()?;
     Ok(OmgReach {
-        dir: dir.display().to_string(),
-        rig: rig.clone(),
+        dir: j.dir.display().to_string(),
+        rig: j.rig.clone(),
         clips: held.clips.len(),
-        split: if train_clips.is_some() {
+        split: if j.train_clips.is_some() {
             "training"
         } else {
             "held-out"
         }
         .into(),
         rows,
+        scripts,
     })
+}
+
+/// The target scripts of a directory, ready to run on one model.
+struct ScriptSet {
+    /// File stems.
+    names: Vec<String>,
+    /// Each script's start (from rest).
+    starts: Vec<Start>,
+    /// Each frame's target block.
+    blocks: Vec<Vec<Vec<f64>>>,
+    /// The hands' target positions on every frame.
+    targets: Vec<Vec<Vec<[f64; 3]>>>,
+    /// The counted hand targets.
+    counted: Vec<Vec<HandTarget>>,
+    /// The `unreachable` ones.
+    far: Vec<Vec<HandTarget>>,
+}
+
+/// The scripts of `dir` (every `*.json` but `expected.json`, sorted by
+/// name) for `omg`, each from rest for its own length.
+fn load_scripts(omg: &OmgNet, dir: &Path) -> Result<ScriptSet> {
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("cannot read the scripts' directory {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.extension().is_some_and(|x| x == "json")
+                && p.file_name().is_some_and(|n| n != "expected.json")
+        })
+        .collect();
+    paths.sort();
+    if paths.is_empty() {
+        bail!("{}: no target scripts (*.json)", dir.display());
+    }
+    let mut set = ScriptSet {
+        names: Vec::new(),
+        starts: Vec::new(),
+        blocks: Vec::new(),
+        targets: Vec::new(),
+        counted: Vec::new(),
+        far: Vec::new(),
+    };
+    for p in &paths {
+        let spec = p.to_string_lossy();
+        let s = TargetScript::load(&spec)?;
+        let n = s.frames.unwrap_or(DEFAULT_FRAMES);
+        let (start, blocks) = crate::omg_rollout::script_start(omg, &[], &s, n)
+            .with_context(|| p.display().to_string())?;
+        let (counted, far) = script_intervals(&s.intervals(&omg.config, n)?);
+        set.names.push(
+            p.file_stem()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+        );
+        set.targets.push(block_positions(&omg.config, &blocks));
+        set.starts.push(start);
+        set.blocks.push(blocks);
+        set.counted.push(counted);
+        set.far.push(far);
+    }
+    Ok(set)
+}
+
+/// The rows of `j`'s model on the scripts of `dir`: hold still, f64 and
+/// each of `deployed`.
+fn measure_scripts(j: &Judged, dir: &Path, deployed: &[Deployment]) -> Result<ScriptsReach> {
+    let d = &j.d;
+    let mut out = ScriptsReach {
+        dir: dir.display().to_string(),
+        scripts: Vec::new(),
+        frames: 0,
+        rows: Vec::new(),
+        unreachable: Vec::new(),
+        skipped: None,
+    };
+    if d.omg.dof.is_none() || j.rig != "R1" {
+        out.skipped = Some(format!(
+            "the target scripts are for R1 joint-velocity models (from rest); {} is {} {}",
+            j.dir.display(),
+            j.rig,
+            if d.omg.dof.is_some() {
+                "joint-velocity"
+            } else {
+                "absolute"
+            }
+        ));
+        return Ok(out);
+    }
+    let set = load_scripts(&d.omg, dir)?;
+    out.scripts = set.names.clone();
+    out.frames = set.blocks.iter().map(Vec::len).sum();
+    let hold = set
+        .starts
+        .iter()
+        .zip(&set.blocks)
+        .map(|(st, b)| vec![st.first.clone(); b.len()])
+        .collect();
+    let float = roll_scripts(d, &set, &mut FloatOmg(&d.omg))?;
+    let mut runs: Vec<(String, usize, Rollouts)> = vec![
+        ("hold still".into(), 0, hold),
+        ("f64".into(), 0, float.clone()),
+    ];
+    for dep in deployed {
+        let ys = roll_scripts(d, &set, &mut dep.net()?)?;
+        runs.push((dep.name.into(), dep.bytes(), ys));
+    }
+    let flat_float = float.concat();
+    for (name, bytes, ys) in runs {
+        let mut c = ReachCounts::default();
+        for (i, y) in ys.iter().enumerate() {
+            c.add_clip(y, &set.targets[i], &set.counted[i], &j.layout, &j.bones);
+            for &t in &set.far[i] {
+                out.unreachable.push(UnreachableRow {
+                    run: name.clone(),
+                    script: set.names[i].clone(),
+                    report: unreachable(y, &set.targets[i], t, &j.layout, &j.bones),
+                });
+            }
+        }
+        let mut r = ReachRow::new(&name, bytes, c.summary(), f64::NAN);
+        if bytes > 0 {
+            r.vs_f64 = Some(diff(&d.omg, &ys.concat(), &flat_float));
+        }
+        out.rows.push(r);
+    }
+    Ok(out)
+}
+
+/// Every frame of several rollouts.
+type Rollouts = Vec<Vec<Vec<f64>>>;
+
+/// Grounded rollouts of every script of `set` by `net`.
+fn roll_scripts(
+    d: &OmgDir,
+    set: &ScriptSet,
+    net: &mut impl phasegate_controller::Network<f64>,
+) -> Result<Vec<Vec<Vec<f64>>>> {
+    (0..set.names.len())
+        .map(|i| {
+            let t: Vec<&[f64]> = set.blocks[i].iter().map(Vec::as_slice).collect();
+            rollout(&d.omg, &set.starts[i], &t, Mode::Grounded, net)
+                .with_context(|| format!("script {}", set.names[i]))
+        })
+        .collect()
 }
 
 /// The f64 forward with every input feature moved each frame by uniform
@@ -636,7 +896,7 @@ pub fn input_noise_rows(j: &Judged, amounts: &[f64], seeds: u64) -> Result<Vec<R
                 rng: rand_chacha::ChaCha8Rng::seed_from_u64(seed),
             };
             let ys = rollouts(d, held, &mut net, &name)?;
-            let mut r = row(d, &name, 0, held, &ys);
+            let mut r = j.row(&name, 0, &ys);
             r.vs_f64 = Some(diff(&d.omg, &ys.concat(), &float));
             r.input_noise = Some(a);
             rows.push(r);
@@ -645,49 +905,112 @@ pub fn input_noise_rows(j: &Judged, amounts: &[f64], seeds: u64) -> Result<Vec<R
     Ok(rows)
 }
 
+/// The columns' header of [`rows_table`].
+const HEADER: &str = "run          bytes  targets (near start)  reach %  plausible %  frames to reach  \
+                      final m  bone err p50/p99 cm  roughness  joint vs data cm | vs f64: joint p99 cm  max cm\n";
+
+/// The rows as table lines.
+fn rows_table(rows: &[ReachRow]) -> String {
+    let mut s = String::from(HEADER);
+    for r in rows {
+        let vs = r.vs_f64.as_ref().map_or("-".to_string(), |v| {
+            format!("{:.3}  {:.3}", 100.0 * v.p99_joint_m, 100.0 * v.max_joint_m)
+        });
+        let joint = if r.joint_vs_data_cm.is_nan() {
+            "-".to_string()
+        } else {
+            format!("{:.2}", r.joint_vs_data_cm)
+        };
+        s += &format!(
+            "{:<11} {:>7} {:>10} ({:>4}) {:>8.1} {:>12.1} {:>16} {:>8.3} {:>11.2} / {:<6.2} {:>10.4} {:>17} | {}\n",
+            r.run,
+            r.blob_bytes,
+            r.targets,
+            r.near_start,
+            100.0 * r.reach,
+            100.0 * r.plausible_reach,
+            r.frames_median.map_or("-".to_string(), |f| format!("{f:.1}")),
+            r.final_m,
+            r.bone_err_p50_cm,
+            r.bone_err_p99_cm,
+            r.rms,
+            joint,
+            vs
+        );
+    }
+    s
+}
+
+/// The issue's bars for every blob row against the f64 row: plausible
+/// reach within 2 percentage points, p99 joint difference to f64 within
+/// 1 cm (int16) or 2 cm (int8).
+fn bars(rows: &[ReachRow], on: &str) -> String {
+    let mut s = String::new();
+    let Some(f) = rows.iter().find(|r| r.run == "f64") else {
+        return s;
+    };
+    for r in rows.iter().filter(|r| r.blob_bytes > 0) {
+        let Some(v) = &r.vs_f64 else {
+            continue;
+        };
+        let pp = 100.0 * (r.plausible_reach - f.plausible_reach);
+        let bar_cm = if r.run.starts_with("int16") { 1.0 } else { 2.0 };
+        let p99 = 100.0 * v.p99_joint_m;
+        let verdict = |ok: bool| if ok { "met" } else { "NOT met" };
+        s += &format!(
+            "{} ({on}): plausible reach {pp:+.1} pp vs f64 (bar: within 2) {}; p99 joint vs f64 {p99:.3} cm (bar: <= {bar_cm}) {}\n",
+            r.run,
+            verdict(pp.abs() <= 2.0 + 1e-9),
+            verdict(p99 <= bar_cm)
+        );
+    }
+    s
+}
+
+impl ScriptsReach {
+    /// The rows as a table, the bars and one line per `unreachable`
+    /// target and run.
+    pub fn table(&self) -> String {
+        if let Some(why) = &self.skipped {
+            return format!("target scripts of {}: skipped: {why}\n", self.dir);
+        }
+        let mut s = format!(
+            "target scripts of {} ({} scripts, {} frames, each from rest; summed over the scripts)\n",
+            self.dir,
+            self.scripts.len(),
+            self.frames
+        );
+        s += &rows_table(&self.rows);
+        s += &bars(&self.rows, "scripts");
+        for u in &self.unreachable {
+            let r = &u.report;
+            s += &format!(
+                "unreachable target ({}, {} hand, frames {}..{}), {}: distance at start {:.3} m, closest {:.3} m, last {:.3} m; largest bone error on its frames {:.2} cm\n",
+                u.script,
+                ["left", "right"][r.hand.min(1)],
+                r.start,
+                r.end,
+                u.run,
+                r.start_m,
+                r.closest_m,
+                r.last_m,
+                r.bone_err_max_cm
+            );
+        }
+        s
+    }
+}
+
 impl OmgReach {
     /// The figures as a table, with the issue's bars for the blobs.
     pub fn table(&self) -> String {
         let mut s = format!(
-            "{} (rig {}, {} {} clips, grounded rollouts of 300 frames)\n\
-             run      bytes  reach %  targets  frames to reach (median)  final m  joint vs data cm  RMS rad/frame | vs f64: joint p99 cm  max cm\n",
+            "{} (rig {}, {} {} clips, grounded rollouts of 300 frames; a target counts if the hand starts \
+             more than {CONTACT_RADIUS_M} m from it, plausible: every bone within 1 cm of the rig's)\n",
             self.dir, self.rig, self.clips, self.split
         );
-        for r in &self.rows {
-            let vs = r.vs_f64.as_ref().map_or("-".to_string(), |v| {
-                format!("{:.3}  {:.3}", 100.0 * v.p99_joint_m, 100.0 * v.max_joint_m)
-            });
-            s += &format!(
-                "{:<6} {:>7} {:>8.1} {:>8} {:>25} {:>8.3} {:>17.2} {:>14.4} | {}\n",
-                r.run,
-                r.blob_bytes,
-                100.0 * r.reach,
-                r.targets,
-                r.frames_median
-                    .map_or("-".to_string(), |f| format!("{f:.1}")),
-                r.final_m,
-                r.joint_vs_data_cm,
-                r.rms,
-                vs
-            );
-        }
-        let float = self.rows.iter().find(|r| r.run == "f64");
-        for r in self.rows.iter().filter(|r| r.blob_bytes > 0) {
-            let (Some(f), Some(v)) = (float, &r.vs_f64) else {
-                continue;
-            };
-            let pp = 100.0 * (r.reach - f.reach);
-            let bar_cm = if r.run.starts_with("int16") { 1.0 } else { 2.0 };
-            let p99 = 100.0 * v.p99_joint_m;
-            s += &format!(
-                "{}: reach {:+.1} pp vs f64 (bar: within 2) {}; p99 joint vs f64 {:.3} cm (bar: <= {bar_cm}) {}\n",
-                r.run,
-                pp,
-                if pp.abs() <= 2.0 { "met" } else { "NOT met" },
-                p99,
-                if p99 <= bar_cm { "met" } else { "NOT met" }
-            );
-        }
+        s += &rows_table(&self.rows);
+        s += &bars(&self.rows, &self.split);
         for r in &self.rows {
             if let Some(sat) = &r.saturated {
                 s += &format!(
@@ -698,6 +1021,9 @@ impl OmgReach {
             }
         }
         s += &self.noise_summary();
+        if let Some(sc) = &self.scripts {
+            s += &sc.table();
+        }
         s
     }
 
@@ -743,21 +1069,96 @@ impl OmgReach {
 mod tests {
     use super::*;
 
-    #[test]
-    fn hand_targets_split_at_every_move_and_keep_the_first_reps() {
-        let a = [0.0, 0.0, 0.0];
-        let b = [0.5, 0.0, 0.0];
-        let c = [0.5, 0.2, 0.0];
-        let t = [a, a, b, b, b, c, a, a];
-        assert_eq!(hand_targets(&t, 9), vec![(0, 2), (2, 5), (5, 6), (6, 8)]);
-        assert_eq!(hand_targets(&t, 2), vec![(0, 2), (2, 5)]);
-        assert_eq!(hand_targets(&[a; 4], 1), vec![(0, 4)]);
+    fn row(run: &str, bytes: usize, plausible: f64, p99_m: f64) -> ReachRow {
+        let s = ReachSummary {
+            targets: 10,
+            plausible_reach: plausible,
+            ..ReachSummary::default()
+        };
+        let mut r = ReachRow::new(run, bytes, s, f64::NAN);
+        if bytes > 0 {
+            r.vs_f64 = Some(Diff {
+                p99_joint_m: p99_m,
+                ..Diff::default()
+            });
+        }
+        r
     }
 
+    /// The JSON uses `metrics.py`'s names (`roughness`) and leaves out the
+    /// joint error where there is no data; the bars judge plausible reach
+    /// and the p99 joint difference per weight width.
     #[test]
-    fn median_of_odd_even_and_empty() {
-        assert_eq!(median(&[3, 1, 2]), Some(2.0));
-        assert_eq!(median(&[4, 1, 2, 3]), Some(2.5));
-        assert_eq!(median(&[]), None);
+    fn rows_are_named_as_metrics_py_names_them_and_the_bars_judge_them() {
+        let rows = [
+            row("f64", 0, 0.80, 0.0),
+            row("int16", 100, 0.79, 0.009),
+            row("int8", 50, 0.77, 0.015),
+        ];
+        let v = serde_json::to_value(&rows[0]).unwrap();
+        assert!(v.get("roughness").is_some() && v.get("rms").is_none());
+        assert!(v.get("joint_vs_data_cm").is_none(), "no data: left out");
+        assert!(v.get("plausible_reach").is_some() && v.get("near_start").is_some());
+        let b = bars(&rows, "scripts");
+        assert!(
+            b.contains(
+                "int16 (scripts): plausible reach -1.0 pp vs f64 (bar: within 2) met; \
+                        p99 joint vs f64 0.900 cm (bar: <= 1) met"
+            ),
+            "{b}"
+        );
+        assert!(
+            b.contains(
+                "int8 (scripts): plausible reach -3.0 pp vs f64 (bar: within 2) NOT met; \
+                        p99 joint vs f64 1.500 cm (bar: <= 2) met"
+            ),
+            "{b}"
+        );
+        let t = rows_table(&rows);
+        assert_eq!(t.lines().count(), 4, "{t}");
+    }
+
+    /// The committed target scripts for an R1 joint-velocity model (the
+    /// embedded one if it is, else `omg::tests::dof_model`): each from
+    /// rest with its frame-0 targets in the start frame, the hands'
+    /// intervals counted, the one `unreachable` target apart.
+    #[test]
+    fn the_committed_scripts_start_from_rest_with_the_unreachable_target_apart() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let embedded = root.join("models/omg/tiny_fe_r1");
+        let d = load_dir(&embedded).unwrap();
+        let d = if d.omg.dof.is_some() {
+            d
+        } else {
+            let Some(dir) = crate::omg::tests::dof_model() else {
+                return;
+            };
+            load_dir(&dir).unwrap()
+        };
+        let set = load_scripts(&d.omg, &root.join("tools/omg/scripts")).unwrap();
+        assert_eq!(set.names.len(), 28);
+        assert_eq!(set.names[0], "01-front-chest-both");
+        let tb = d.omg.config.slice("target");
+        for (i, (st, b)) in set.starts.iter().zip(&set.blocks).enumerate() {
+            assert!(st.q0.iter().chain(&st.v0).all(|&v| v == 0.0), "from rest");
+            assert_eq!(st.first[tb.clone()], b[0][..], "{}", set.names[i]);
+            assert!(set.counted[i]
+                .iter()
+                .chain(&set.far[i])
+                .all(|t| t.hand < 2 && t.start < t.end && t.end <= b.len()));
+        }
+        let far: Vec<(&String, &Vec<HandTarget>)> = set
+            .names
+            .iter()
+            .zip(&set.far)
+            .filter(|(_, f)| !f.is_empty())
+            .collect();
+        assert_eq!(far.len(), 1);
+        assert_eq!(far[0].0, "26-unreachable-front-left");
+        assert_eq!(far[0].1.len(), 1);
+        let e = load_scripts(&d.omg, &root.join("host-sim/src/omg_rollout"))
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("no target scripts"), "{e}");
     }
 }

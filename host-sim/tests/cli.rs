@@ -95,11 +95,22 @@ fn eval_reference_and_compare() {
     assert_eq!(v["overall"]["max_abs"].as_f64().unwrap(), 0.0);
 }
 
+/// `host-sim demo` (without QEMU): the embedded model through the demo's
+/// target script, the reach rule in words, float and fixed rows, the demo
+/// bar's verdict, the figures and both pictures.
 #[test]
 fn demo_runs_the_trained_omg_model_and_draws_it() {
     let tmp = tempfile::tempdir().unwrap();
     let png = tmp.path().join("reach.png");
-    let o = host_sim(&["demo", "--no-target", "--picture", s(&png)]);
+    let gif = tmp.path().join("reach.gif");
+    let o = host_sim(&[
+        "demo",
+        "--no-target",
+        "--picture",
+        s(&png),
+        "--gif",
+        s(&gif),
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(
@@ -107,19 +118,28 @@ fn demo_runs_the_trained_omg_model_and_draws_it() {
         "{text}"
     );
     for needle in [
-        "300 frames",
-        "float       2/4",
+        "host-sim/src/demo/reach-demo.json",
+        "600 frames (10.0 s at 60 fps)",
+        "reach rule: a target counts if the hand starts more than 0.1 m from it; \
+         reached = within 0.1 m with every bone within 1 cm of the rig's",
+        "\nfloat   ",
+        "\nfixed   ",
+        "demo bar (>= 3/4 of the targets away from the hands reached, int8): ",
         "fixed vs float joint positions: p99",
-        "blob size        153568 bytes",
-        "RAM              2152 bytes of activations",
-        "MACs per frame   131680",
+        "blob size ",
+        "bytes of activations + ",
+        "MACs per frame ",
         "Cortex-M4        not measured here: skipped (--no-target)",
-        "picture",
+        "picture ",
+        "animation ",
     ] {
         assert!(text.contains(needle), "{needle}: {text}");
     }
+    assert!(!text.contains("reaches poorly"), "{text}");
     let bytes = std::fs::read(&png).unwrap();
     assert_eq!(&bytes[1..4], b"PNG");
+    let bytes = std::fs::read(&gif).unwrap();
+    assert_eq!(&bytes[..3], b"GIF");
 }
 
 #[test]

@@ -18,8 +18,9 @@ use anyhow::{anyhow, bail, Context, Result};
 use serde::Serialize;
 
 use crate::omg::{load_dir, rollout, FixedOmg, FloatOmg, Mode, Start};
-pub use crate::omg_reach::CONTACT_RADIUS_M;
-use crate::omg_reach::{hand_targets, median, rms_roughness, HeldOut};
+use crate::omg_reach::HeldOut;
+pub use crate::reach_metrics::CONTACT_RADIUS_M;
+use crate::reach_metrics::{hand_intervals, median};
 use record::OmgRecord;
 use script::{TargetScript, DEFAULT_FRAMES};
 
@@ -87,7 +88,8 @@ pub(crate) fn targets(
         }
         Ok(c)
     };
-    let (start, blocks) = if let Some(c) = args.script.strip_prefix("ref:") {
+    let (start, blocks): (Start, Vec<Vec<f64>>) = if let Some(c) = args.script.strip_prefix("ref:")
+    {
         let refs = &d.refs;
         let c = clip_index(c, refs.targets.dims[0], "the committed reference")?;
         let n = args.frames.unwrap_or(refs.targets.dims[1]);
@@ -118,28 +120,58 @@ pub(crate) fn targets(
     } else {
         let s = TargetScript::load(&args.script)?;
         let n = args.frames.or(s.frames).unwrap_or(DEFAULT_FRAMES);
-        let (start, own) = match d.omg.dof {
-            // The rest frame every committed absolute model starts its
-            // references from.
-            None => {
-                let start = Start::frame(d.refs.inputs.row(0, 0));
-                let own = start.first[tb.clone()].to_vec();
-                (start, own)
-            }
-            // From rest; filled in with the first targets below.
-            Some(_) => (Start::frame(&[]), Start::rest_targets(&d.omg)?),
-        };
-        let blocks = s
-            .blocks(cfg, &own, n)
-            .with_context(|| args.script.clone())?;
-        (start, blocks)
+        return script_start(&d.omg, d.refs.inputs.row(0, 0), &s, n)
+            .with_context(|| args.script.clone());
     };
     if blocks.is_empty() {
         bail!("--frames must be at least 1");
     }
     let mut start = start;
+    start.first[tb].copy_from_slice(&blocks[0]);
+    Ok((start, blocks))
+}
+
+/// Where `omg`'s rollout of the target script `s` over `frames` frames
+/// starts, and each frame's target block: a joint-velocity model from rest
+/// ([`crate::omg::Start::rest`], the key joints the script does not name
+/// targeting their own rest pose, [`Start::rest_targets`]), an absolute
+/// model from `reference_first` (the rest frame every committed absolute
+/// model starts its references from, its own targets for the joints the
+/// script does not name); the start frame holds the script's frame-0
+/// target block.
+pub fn script_start(
+    omg: &exporter::net::omg::OmgNet,
+    reference_first: &[f64],
+    s: &TargetScript,
+    frames: usize,
+) -> Result<(Start, Vec<Vec<f64>>)> {
+    let cfg = &omg.config;
+    let tb = cfg.slice("target");
+    if frames == 0 {
+        bail!("--frames must be at least 1");
+    }
+    let mut start = match omg.dof {
+        None => {
+            let start = Start::frame(reference_first);
+            if start.first.len() != cfg.model_width {
+                bail!(
+                    "a reference frame of {} values, the model's are {}",
+                    start.first.len(),
+                    cfg.model_width
+                );
+            }
+            start
+        }
+        // From rest; its frame built on the first targets below.
+        Some(_) => Start::frame(&[]),
+    };
+    let own = match omg.dof {
+        None => start.first[tb.clone()].to_vec(),
+        Some(_) => Start::rest_targets(omg)?,
+    };
+    let blocks = s.blocks(cfg, &own, frames)?;
     if start.first.is_empty() {
-        start = Start::rest(&d.omg, &blocks[0])?
+        start = Start::rest(omg, &blocks[0])?
             .context("an absolute model starts from a reference frame")?;
     }
     start.first[tb].copy_from_slice(&blocks[0]);
@@ -190,7 +222,7 @@ pub fn run(args: &OmgRolloutArgs) -> Result<(OmgRecord, String)> {
             (frames, "float (f64 graph)".to_string())
         }
     };
-    let roughness = rms_roughness(&d.omg.config, &frames);
+    let roughness = crate::reach_metrics::roughness(&frames, &d.omg.config.slice("rot"));
     let record = OmgRecord::new(&d.omg.config, &parents, frames)?;
     let label = format!(
         "{label}, {} {} mode, RMS roughness {roughness:.5} rad",
@@ -234,7 +266,7 @@ pub fn reach(r: &OmgRecord) -> Vec<TargetReach> {
                     .sqrt()
             })
             .collect();
-        for (a, b) in hand_targets(&targets, usize::MAX) {
+        for (a, b) in hand_intervals(&targets, usize::MAX) {
             out.push(TargetReach {
                 hand,
                 frames: (a, b),

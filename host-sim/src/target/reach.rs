@@ -27,8 +27,9 @@ use super::{
     INSTRUCTIONS_PER_TICK, RAM_BUDGET,
 };
 use crate::footprint::TEXT_BUDGETS;
-use crate::omg::{load_dir, reach_layout};
+use crate::omg::{load_dir, reach_layout, Start};
 use crate::omg_rollout::{targets, OmgRolloutArgs};
+use exporter::net::omg::OmgNet;
 use wire::reach::{self as wr, FrameHead, TargetOutcome, HANDS};
 
 /// Values per frame the firmware's loop holds (its staging width).
@@ -111,9 +112,21 @@ pub fn plan_from_script(
         mode,
     };
     let (start, blocks) = targets(&args, &d)?;
-    let layout = reach_layout(&d.omg)?;
+    plan_from_start(&d.omg, &start, &blocks, mode).with_context(|| dir.display().to_string())
+}
+
+/// The plan of `omg`'s rollout from `start` through the target blocks
+/// `blocks` (block 0 is the start frame's; one step per later block, which
+/// sets a hand's target where it changes it).
+pub fn plan_from_start(
+    omg: &OmgNet,
+    start: &Start,
+    blocks: &[Vec<f64>],
+    mode: CostMode,
+) -> Result<ReachPlan> {
+    let layout = reach_layout(omg)?;
     let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
-    let dofs = match &d.omg.dof {
+    let dofs = match &omg.dof {
         None => None,
         Some(form) => Some(DofPlan {
             skeleton: crate::omg::skeleton(&form.skeleton)?,
@@ -122,11 +135,7 @@ pub fn plan_from_script(
         }),
     };
     let k = layout.key();
-    ensure!(
-        k >= HANDS,
-        "{}: {k} key joints, reach mode sends two hands",
-        dir.display()
-    );
+    ensure!(k >= HANDS, "{k} key joints, reach mode sends two hands");
     let targets = blocks
         .windows(2)
         .map(|w| {

@@ -16,6 +16,13 @@ def readme(d: Path) -> str:
     s = c["sizes"]
     m = c["macs_per_frame"]
     files = sorted(p.name for p in d.iterdir() if p.is_file() and p.name != "README.md")
+    if "train_s" in t:
+        times = f"training {t['train_s']} s"
+    else:
+        times = f"AE pre-training {t['ae_pretrain_s']} s, OMG training {t['omg_train_s']} s"
+    wall = (f"Seed {t['seed']}; {t['threads']} thread(s); torch {t['torch']}, Python {t['python']}. Wall time on the"
+            f" shared 2-core machine: {times}, {t['total_wall_s']} s in all (with export). Training clips:"
+            f" {t['train_clips']}.")
     sizes = {p: (d / p).stat().st_size for p in files}
     lines = [
         f"# {d.name}",
@@ -29,9 +36,7 @@ def readme(d: Path) -> str:
         t["command"],
         "```",
         "",
-        f"Seed {t['seed']}; {t['threads']} thread(s); torch {t['torch']}, Python {t['python']}. Wall time on the shared"
-        f" 2-core machine: AE pre-training {t['ae_pretrain_s']} s, OMG training {t['omg_train_s']} s,"
-        f" {t['total_wall_s']} s in all (with export). Training clips: {t['train_clips']}.",
+        wall,
         "",
         f"Sizes: AE hidden {s['ae_hidden']}, latent L {s['latent']}, cost encoder {s['cost_hidden']}, experts"
         f" {s['experts']} x hidden {s['expert_hidden']}, gate hidden {s['gate_hidden']}"
@@ -48,13 +53,46 @@ def readme(d: Path) -> str:
             f"Normalisation of the phase, cost and target blocks is the source model's; the pose block's is this rig's.",
             "",
         ]
-    lines += [
-        f"Final losses (normalised MSE over the whole frame): train {t['final_train_loss']:.4f} (last epoch, mixed"
-        f" teacher forcing/autoregression), validation one-step {t['final_val_one_step']:.4f}.",
-        "",
-    ]
+    dof = c.get("pose_form") == "dof_velocity"
+    if dof:
+        a = t["args"]
+        lines += [
+            f"**Joint-velocity model** (`docs/omg-joint-velocity.md`): the decoder outputs the desired velocity of the"
+            f" rig's {s['dof']} DOFs; the controller limits it and rebuilds the pose by forward kinematics. Recipe"
+            f" (`tools/omg/train/dagger.py`): {a['tf_steps']} teacher-forced steps, then {a['dagger']} DAgger"
+            f" iterations of {a['dagger_steps']} steps (batches of {a['train_batch']} frames, the IK's desired velocity"
+            f" as the label at every visited state, the last {a['keep']} rollouts kept, learning rate {a['lr']} to"
+            f" {a['lr_end']}, joint-position loss weight {a['pos_loss']}). Final loss {t['final_loss']:.4f}.",
+            "",
+        ]
+    else:
+        lines += [
+            f"Final losses (normalised MSE over the whole frame): train {t['final_train_loss']:.4f} (last epoch, mixed"
+            f" teacher forcing/autoregression), validation one-step {t['final_val_one_step']:.4f}.",
+            "",
+        ]
     q = c.get("qat")
-    if q:
+    if q and dof:
+        dg = q["dagger"]
+        lines += [
+            f"**Then fine-tuned for its int{q['weight_bits']} blob**: the command above, run with `--out {q['source']}`,"
+            " wrote the model that",
+            "",
+            "```sh",
+            q["command"],
+            "```",
+            "",
+            f"fine-tuned with {dg['iterations']} DAgger iterations of {dg['steps']} steps (learning rate {q['lr']} to"
+            f" {dg['lr_end']}, {q['qat_s']} s) with every weight matrix rounded to the blob's grid in each step and in"
+            " every rollout"
+            + (" (only the autoencoder; the shared nodes on the grid of the motion blob of"
+               f" `{q['motion_from']}`)" if q.get("motion_from") else "")
+            + f", then stored the weights as the blob computes them (snapped {len(q['snaps'])} times until nothing"
+            " moved). `history.json` and `train.log` are the source's training; `qat_history.json` and `qat.log`"
+            " the fine-tuning's.",
+            "",
+        ]
+    elif q:
         lines += [
             f"**Then fine-tuned for its int{q['weight_bits']} blob** (quantisation-aware training, docs/omg.md): the"
             f" command above, run with `--out {q['source']}`, wrote the model that",
@@ -79,15 +117,16 @@ def readme(d: Path) -> str:
         "|---|---|---|",
     ]
     desc = {
-        "model.safetensors": f"layer weights ({c.get('weights_dtype', 'float32')}) and `norm.mean`/`norm.std` (float32);"
-        " names and shapes in `tools/omg/omg_np.py`",
+        "model.safetensors": f"layer weights ({c.get('weights_dtype', 'float32')}) and `norm.mean`/`norm.std`"
+        + (" and `norm.dof_mean`/`norm.dof_std`" if c.get("pose_form") == "dof_velocity" else "")
+        + " (float32); names and shapes in `tools/omg/omg_np.py`",
         "config.json": "sizes, slices, out slices, phase-update constant, mode, normalisation, params, MACs, training"
         " (and fine-tuning) record",
-        "history.json": "per-epoch losses and autoregression probability",
+        "history.json": "per-stage losses (and, for joint-velocity models, the closed-loop reach on training clips)",
         "train.log": "training log",
-        "qat_history.json": "per-epoch losses of the quantisation-aware fine-tuning",
+        "qat_history.json": "per-stage losses of the quantisation-aware fine-tuning",
         "qat.log": "quantisation-aware fine-tuning log",
-        "rig.json": "the generator's rig description (joints, parents, rest pose), for drawing the skeleton",
+        "rig.json": "the generator's rig description (joints, parents, rest pose, DOFs and limits)",
         "references.npz": "reference arrays (compressed, float32), below",
         "choice.json": "the fine-tuning runs this model was chosen among (`tools.omg.train.choose`): each run's"
         " figures on the training clips, which chose, and on the held-out clips, measured after; the rule; the kept run",
