@@ -44,7 +44,7 @@ class IKParams:
     rot_weight: float = 0.05  # metres per radian of orientation error (priority 2)
     max_pos_err: float = 0.3  # m, clamp of the positional error per step
     max_rot_err: float = 1.0  # rad, clamp of the orientation error per step
-    rest_gain: float = 0.0  # null-space pull towards the rest pose, per frame (off: it held hands short of targets)
+    rest_gain: float = 0.05  # pull towards the rest pose, per frame, in the exact null space of the task
 
     def to_json(self) -> dict:
         return dict(self.__dict__)
@@ -140,8 +140,12 @@ class HandIK:
             if not blocked.any():
                 break
             W2[blocked] = 0.0
-        # Posture pull in the null space of the whole task.
-        proj = pinv_solve(J, J, W)  # (B, D, D) = J# J
+        # Posture pull in the exact (undamped, SVD-truncated) null space of the whole task:
+        # it returns the redundant joints (the spine, above all) towards rest without moving
+        # either hand; a damped projector leaked part of it into the task and held hands
+        # short of their targets.
+        whj = np.sqrt(W)[:, :, None]
+        proj = whj * (np.linalg.pinv(J * np.swapaxes(whj, 1, 2), rcond=1e-3) @ J)
         dq = dq + (pull * (W > 0)) - (proj @ (pull * (W > 0))[..., None])[..., 0]
         return np.where(outward(dq), 0.0, dq)
 
