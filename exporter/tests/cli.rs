@@ -810,7 +810,8 @@ fn omg_exports_the_committed_model_and_refuses_a_bad_config_without_writing() {
     assert!(o.status.success(), "{}", stderr(&o));
     let bytes = std::fs::read(&blob).unwrap();
     let m = phasegate::Model::from_bytes(&bytes).unwrap();
-    assert_eq!((m.input_dim(), m.output_dim()), (356, 320));
+    // Out: the phases (2K = 8), the rig's 24 DOF velocities, the costs (6K = 24).
+    assert_eq!((m.input_dim(), m.output_dim()), (356, 56));
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
     assert_eq!(r["weight_format"], "int16");
     assert_eq!(r["overflow_proof"], true);

@@ -1150,22 +1150,18 @@ pub(crate) mod tests {
     }
 
     /// A joint-velocity model to test with: `$PHASEGATE_DOF_MODEL`, or the
-    /// preview `tools/omg/train` writes to `data/omg/models/dof_preview`
-    /// (not committed); `None` (the tests skip) without one.
-    pub(crate) fn dof_model() -> Option<PathBuf> {
+    /// committed embedded default `models/omg/tiny_fe_r1`.
+    pub(crate) fn dof_model() -> PathBuf {
         let dir = std::env::var_os("PHASEGATE_DOF_MODEL").map_or_else(
-            || Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/omg/models/dof_preview"),
+            || Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg/tiny_fe_r1"),
             PathBuf::from,
         );
-        if dir.join("config.json").exists() {
-            Some(dir)
-        } else {
-            eprintln!(
-                "SKIPPED: no joint-velocity model at {} (set PHASEGATE_DOF_MODEL)",
-                dir.display()
-            );
-            None
-        }
+        assert!(
+            dir.join("config.json").exists(),
+            "no joint-velocity model at {} (set PHASEGATE_DOF_MODEL)",
+            dir.display()
+        );
+        dir
     }
 
     /// The f64 loop reproduces PyTorch's rollouts of a joint-velocity
@@ -1174,7 +1170,7 @@ pub(crate) mod tests {
     /// is the joint-velocity form; a rest start is FK of `q = 0`.
     #[test]
     fn a_dof_model_reproduces_its_references_and_starts_from_rest() {
-        let Some(dir) = dof_model() else { return };
+        let dir = dof_model();
         let d = load_dir(&dir).unwrap();
         let form = d.omg.dof.as_ref().expect("a dof_velocity model");
         let l = reach_layout(&d.omg).unwrap();
@@ -1251,7 +1247,7 @@ pub(crate) mod tests {
     /// angles, `v0 = q0 * fps`.
     #[test]
     fn a_dof_clip_starts_from_the_datas_joint_angles() {
-        let Some(dir) = dof_model() else { return };
+        let dir = dof_model();
         let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/omg");
         let d = load_dir(&dir).unwrap();
         let held = crate::omg_reach::HeldOut::read_splits(&data, "R1", 440, &["test"], 2).unwrap();
@@ -1277,7 +1273,7 @@ pub(crate) mod tests {
     /// with a one step of frame width are refused naming the array.
     #[test]
     fn damaged_dof_references_are_refused_naming_the_array() {
-        let Some(dir) = dof_model() else { return };
+        let dir = dof_model();
         let mut arrays = exporter::npz::read_npz(&dir.join("references.npz")).unwrap();
         let tmp = tempfile::tempdir().unwrap();
         for f in ["config.json", "model.safetensors"] {

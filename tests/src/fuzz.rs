@@ -446,8 +446,20 @@ pub fn commands(mut data: &[u8]) -> Vec<(u8, Command)> {
 
 /// The committed OMG model `tiny_fe_r1` as an int8 blob, and its first
 /// reference frame (f32), built once.
-fn omg_blob() -> &'static (Vec<u8>, Vec<f32>, phasegate_controller::ReachLayout) {
-    static B: OnceLock<(Vec<u8>, Vec<f32>, phasegate_controller::ReachLayout)> = OnceLock::new();
+/// The committed tiny_fe_r1 as an int8 blob, with what a joint-velocity
+/// loop starts from (the first reference frame, the skeleton, the first
+/// reference clip's joint angles and velocities).
+struct OmgFixture {
+    blob: Vec<u8>,
+    layout: phasegate_controller::ReachLayout,
+    skeleton: phasegate_controller::Skeleton<f32>,
+    first: Vec<f32>,
+    q0: Vec<f32>,
+    v0: Vec<f32>,
+}
+
+fn omg_blob() -> &'static OmgFixture {
+    static B: OnceLock<OmgFixture> = OnceLock::new();
     B.get_or_init(|| {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg/tiny_fe_r1");
         let d = host_sim::omg::load_dir(&dir).expect("committed OMG model");
@@ -457,9 +469,17 @@ fn omg_blob() -> &'static (Vec<u8>, Vec<f32>, phasegate_controller::ReachLayout)
         };
         let blob = host_sim::omg::export(&d, phasegate::blob::WeightFormat::I8, &opts)
             .expect("OMG export");
-        let first = d.refs.inputs.row(0, 0).iter().map(|&v| v as f32).collect();
-        let layout = host_sim::omg::reach_layout(&d.omg).expect("layout");
-        (blob, first, layout)
+        let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+        let start = host_sim::omg::reference_start(&d, 0);
+        let form = d.omg.dof.as_ref().expect("a joint-velocity model");
+        OmgFixture {
+            blob,
+            layout: host_sim::omg::reach_layout(&d.omg).expect("layout"),
+            skeleton: host_sim::omg::skeleton::<f32>(&form.skeleton).expect("skeleton"),
+            first: f32s(&start.first),
+            q0: f32s(&start.q0),
+            v0: f32s(&start.v0),
+        }
     })
 }
 
@@ -474,16 +494,27 @@ fn omg_blob() -> &'static (Vec<u8>, Vec<f32>, phasegate_controller::ReachLayout)
 /// step over the fixed-point runtime gives a finite frame.
 pub fn exercise_reach(mut data: &[u8]) -> usize {
     use phasegate_controller::{reach::MAX_TARGET_M, CostMode, Reach, Target};
-    let (blob, first, layout) = omg_blob();
+    let f = omg_blob();
+    let layout = &f.layout;
     let mode = match data.first() {
         Some(b) if b % 2 == 1 => CostMode::Faithful,
         _ => CostMode::Grounded,
     };
     data = data.get(1..).unwrap_or(&[]);
-    let model = Model::from_bytes(blob).expect("OMG blob");
+    let model = Model::from_bytes(&f.blob).expect("OMG blob");
     let mut rt = Box::new(Runtime::<ARENA>::new(model).expect("fits"));
-    let mut r: Box<Reach<f32, 448>> =
-        Box::new(Reach::new(&*rt, layout.clone(), mode, first).expect("reach"));
+    let mut r: Box<Reach<f32, 512>> = Box::new(
+        Reach::with_dofs(
+            &*rt,
+            layout.clone(),
+            mode,
+            &f.first,
+            f.skeleton.clone(),
+            &f.q0,
+            &f.v0,
+        )
+        .expect("reach"),
+    );
     let mut steps = 0;
     let mut actions = 0;
     while !data.is_empty() && actions < 48 {

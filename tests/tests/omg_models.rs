@@ -1,5 +1,6 @@
-//! The committed OMG models (`models/omg/*`: tiny FE, its Frozen R4
-//! transfer, small FE, small RBF-CAT) through `exporter omg`'s importer:
+//! The committed OMG models (`models/omg/*`: tiny FE, its Frozen and Raw
+//! R4 transfers, small FE, small RBF-CAT, tiny FS; all joint-velocity
+//! models, `docs/omg-joint-velocity.md`) through `exporter omg`'s importer:
 //! the exporter's f64 graph forward against the PyTorch reference outputs
 //! committed beside them (one step and the 300-frame grounded rollout), and
 //! int16 / int8 blobs on the host runtime against that forward
@@ -26,10 +27,12 @@ fn model_dir(name: &str) -> PathBuf {
 const MODELS: [&str; 2] = ["tiny_fe_r1", "tiny_fe_r4_frozen"];
 
 /// All committed models: the small FE, the small RBF-CAT (its clustering
-/// layer on the graph's RBF op) and the tiny FS included.
-const ALL_MODELS: [&str; 5] = [
+/// layer on the graph's RBF op), the tiny FS and the Raw R4 transfer
+/// included.
+const ALL_MODELS: [&str; 6] = [
     "tiny_fe_r1",
     "tiny_fe_r4_frozen",
+    "tiny_fe_r4_raw",
     "small_fe_r1",
     "small_rbfcat_r1",
     "tiny_fs_r1",
@@ -179,11 +182,15 @@ fn omg_data(what: &str) -> Option<PathBuf> {
     None
 }
 
-/// `host-sim omg-reach`'s f64 rollouts of the held-out clips give the
-/// NumPy evaluation's figures (`models/omg/eval.json`, grounded mode):
-/// two implementations of the loop and the metrics agree. Needs the data
-/// set (`python3 -m tools.omg.generate --out data/omg --seed 0 --rigs
-/// R1,R4`, about a minute; .ci/run generates it and runs this test again).
+/// `host-sim omg-reach`'s f64 rollouts of the held-out clips (and of the
+/// target scripts) give the NumPy evaluation's figures
+/// (`models/omg/eval.json`, `python3 -m tools.omg.evaluate`): two
+/// implementations of the loop and of the metrics (`tools/omg/metrics.py`,
+/// `host_sim::reach_metrics`) agree. Bone errors differ by the rest lengths'
+/// rounding (NumPy takes the rig's exact offsets, host-sim the config's,
+/// rounded to 1e-6 m). Needs the data set (`python3 -m tools.omg.generate
+/// --out data/omg --seed 0 --rigs R1,R4`, about a minute; .ci/run generates
+/// it and runs this test again).
 #[test]
 fn reach_metrics_match_the_numpy_evaluation() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
@@ -197,8 +204,10 @@ fn reach_metrics_match_the_numpy_evaluation() {
         headroom: HEADROOM,
         ..QuantOptions::default()
     };
+    let scripts = root.join("tools/omg/scripts");
     for name in MODELS {
-        let r = host_sim::omg_reach::measure(&model_dir(name), &data, &opts, &knobs, None, None)
+        let j = host_sim::omg_reach::Judged::new(&model_dir(name), &data, None).unwrap();
+        let r = host_sim::omg_reach::measure_with_scripts(&j, &opts, &knobs, None, Some(&scripts))
             .unwrap();
         eprint!("{}", r.table());
         let want = eval
@@ -207,33 +216,44 @@ fn reach_metrics_match_the_numpy_evaluation() {
             .iter()
             .find(|m| m["name"] == name)
             .unwrap_or_else(|| panic!("{name} not in eval.json"));
-        let f = r.rows.iter().find(|x| x.run == "f64").unwrap();
-        let g = &want["grounded"];
-        let close = |a: f64, b: &serde_json::Value, tol: f64, what: &str| {
-            let b = b.as_f64().unwrap();
-            assert!(
-                (a - b).abs() <= tol,
-                "{name} {what}: host-sim {a}, NumPy {b}"
-            );
-        };
         assert_eq!(r.clips, want["clips"].as_u64().unwrap() as usize, "{name}");
-        assert_eq!(f.targets, want["gt"]["targets"].as_u64().unwrap() as usize);
-        close(f.reach, &g["reach"], 1e-9, "reach");
-        close(
-            f.frames_median.unwrap(),
-            &g["frames"],
-            1e-9,
-            "frames to reach",
-        );
-        close(f.final_m, &g["final_m"], 1e-4, "final distance");
-        close(f.joint_vs_data_cm, &g["joint_cm"], 1e-3, "joint error");
-        close(f.rms, &g["rms"], 1e-5, "roughness");
-        let d = r.rows.iter().find(|x| x.run == "data").unwrap();
-        close(d.reach, &want["gt"]["reach"], 1e-9, "data reach");
+        let mut sets = vec![("held_out", r.rows.clone())];
+        if let Some(s) = r.scripts.as_ref().filter(|s| s.skipped.is_none()) {
+            sets.push(("scripts", s.rows.clone()));
+        }
+        for (set, rows) in sets {
+            for (run, py) in [("f64", "f64"), ("data", "data"), ("hold still", "hold still")] {
+                let Some(x) = rows.iter().find(|x| x.run == run) else {
+                    continue;
+                };
+                let w = &want[set][py];
+                if w.is_null() {
+                    continue;
+                }
+                let close = |a: f64, key: &str, tol: f64| {
+                    let b = w[key].as_f64().unwrap_or(f64::NAN);
+                    assert!(
+                        (a - b).abs() <= tol,
+                        "{name} {set} {run} {key}: host-sim {a}, NumPy {b}"
+                    );
+                };
+                assert_eq!(x.targets, w["targets"].as_u64().unwrap() as usize, "{name} {set} {run}");
+                assert_eq!(x.near_start, w["near_start"].as_u64().unwrap() as usize);
+                close(x.reach, "reach", 1e-9);
+                close(x.plausible_reach, "plausible_reach", 1e-9);
+                if let Some(f) = x.frames_median {
+                    close(f, "frames_median", 1e-9);
+                }
+                close(x.final_m, "final_m", 1e-5);
+                close(x.bone_err_p99_cm, "bone_err_p99_cm", 1e-3);
+                close(x.rms, "roughness", 1e-6);
+            }
+        }
         // The blobs ran the same clips and were compared with the f64 rollout.
+        let f = r.rows.iter().find(|x| x.run == "f64").unwrap();
         for run in ["int16", "int8"] {
             let b = r.rows.iter().find(|x| x.run == run).unwrap();
-            assert_eq!(b.targets, f.targets);
+            assert_eq!(b.targets + b.near_start, f.targets + f.near_start);
             assert!(
                 b.vs_f64.as_ref().unwrap().frames == r.clips * 300,
                 "{name} {run}"
@@ -247,9 +267,9 @@ fn reach_metrics_match_the_numpy_evaluation() {
 /// (whole blobs; for the Frozen R4 model, rig blobs against tiny_fe_r1's
 /// motion blobs of the same width) keeps the f64 model's reach within 2
 /// percentage points, and its p99 joint difference to the f64 rollout
-/// within 1 cm (int16) and 2 cm (int8) over 48 clips of 300 frames. The
-/// models are fine-tuned for their int8 blobs (`tools.omg.train.qat`), each
-/// run chosen by a rule that reads no held-out clip. No row of the graph's
+/// within 1 cm (int16) and 2 cm (int8) over 96 clips of 300 frames. The
+/// models are fine-tuned for their int8 blobs (`tools.omg.train.qat`'s
+/// DAgger on the blob's grid, one fixed recipe). No row of the graph's
 /// output saturates on the f64 rollout's frames (the exporter keeps them as
 /// wide as the input stage: before, small RBF-CAT's int16 blob clipped arm
 /// velocities and missed its bar at 1.240 cm). Prints every verdict and
@@ -267,6 +287,7 @@ fn reach_bars_on_every_committed_model() {
     for (name, motion) in [
         ("tiny_fe_r1", None),
         ("tiny_fe_r4_frozen", Some(model_dir("tiny_fe_r1"))),
+        ("tiny_fe_r4_raw", None),
         ("small_fe_r1", None),
         ("small_rbfcat_r1", None),
         ("tiny_fs_r1", None),
@@ -315,14 +336,82 @@ fn reach_bars_on_every_committed_model() {
                 sat.summary()
             );
             assert!(
-                (b.reach - f.reach).abs() <= 0.02 + 1e-12,
-                "{name} {}: reach {} against {}",
+                (b.plausible_reach - f.plausible_reach).abs() <= 0.02 + 1e-12,
+                "{name} {}: plausible reach {} against {}",
                 b.run,
-                b.reach,
-                f.reach
+                b.plausible_reach,
+                f.plausible_reach
             );
         }
     }
+}
+
+/// The reaching issue's bars (issue 34; `models/omg/README.md` has the
+/// table): the embedded default, tiny FE, as its **int8 blob** on the
+/// runtime plausibly reaches at least 60 % of the held-out clips' targets
+/// and of the hand-written scripts' (`tools/omg/scripts`, targets the hand
+/// does not start at), in at most 1.5 times the data's median frames, ends
+/// within 0.12 m on average, keeps every bone within 1 cm (p99) and is at
+/// most 1.5 times as rough as the data; R4 through its rig blob on R1's
+/// motion blob plausibly reaches at least 50 %, ahead of the Raw R4 model
+/// trained from scratch on the same clips. Needs the data set.
+#[test]
+fn the_reaching_bars_hold() {
+    let Some(data) = omg_data("reaching bars") else {
+        return;
+    };
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let knobs = host_sim::quant_knobs::Int8Knobs::default();
+    let opts = QuantOptions {
+        headroom: HEADROOM,
+        ..QuantOptions::default()
+    };
+    let j = host_sim::omg_reach::Judged::new(&model_dir("tiny_fe_r1"), &data, None).unwrap();
+    let r = host_sim::omg_reach::measure_with_scripts(
+        &j,
+        &opts,
+        &knobs,
+        None,
+        Some(&root.join("tools/omg/scripts")),
+    )
+    .unwrap();
+    eprint!("{}", r.table());
+    let row = |rows: &[host_sim::omg_reach::ReachRow], run: &str| {
+        rows.iter().find(|x| x.run == run).unwrap().clone()
+    };
+    let (int8, data_row) = (row(&r.rows, "int8"), row(&r.rows, "data"));
+    assert!(int8.plausible_reach >= 0.60, "{int8:?}");
+    assert!(
+        int8.frames_median.unwrap() <= 1.5 * data_row.frames_median.unwrap(),
+        "{int8:?} {data_row:?}"
+    );
+    assert!(int8.final_m <= 0.12, "{int8:?}");
+    assert!(int8.bone_err_p99_cm <= 1.0, "{int8:?}");
+    assert!(int8.rms <= 1.5 * data_row.rms, "{int8:?} {data_row:?}");
+    let scripts = r.scripts.as_ref().unwrap();
+    assert!(scripts.skipped.is_none());
+    let s8 = row(&scripts.rows, "int8");
+    assert!(s8.plausible_reach >= 0.60, "{s8:?}");
+    assert!(s8.targets >= 60, "most script targets count: {s8:?}");
+
+    let frozen = host_sim::omg_reach::measure(
+        &model_dir("tiny_fe_r4_frozen"),
+        &data,
+        &opts,
+        &knobs,
+        Some(&model_dir("tiny_fe_r1")),
+        None,
+    )
+    .unwrap();
+    let raw = host_sim::omg_reach::measure(&model_dir("tiny_fe_r4_raw"), &data, &opts, &knobs, None, None)
+        .unwrap();
+    eprint!("{}{}", frozen.table(), raw.table());
+    let (f8, r8) = (row(&frozen.rows, "int8 rig"), row(&raw.rows, "int8"));
+    assert!(f8.plausible_reach >= 0.50, "{f8:?}");
+    assert!(
+        f8.plausible_reach > r8.plausible_reach,
+        "Frozen {f8:?} against Raw {r8:?}"
+    );
 }
 
 /// `omg-reach --train-clips N` judges on the first N clips of the training
@@ -399,15 +488,11 @@ fn input_noise_rows_perturb_the_f64_rollout_and_nothing_else() {
 }
 
 /// The device's configuration of the reaching controller: the loop in f32
-/// (`Reach<f32, _>`) over the fixed-point runtime, sized statically for
-/// the model, follows the host's loop over the same blob (f64 glue) on
-/// the reference clips; the glue's f32 rounding is all that differs. The
-/// two loops are bit-identical until the glue's rounding moves one input
-/// across a rounding boundary; the loop's answer to that one step (the
-/// output's position rows are at Q11 since they cover the input stage,
-/// 0.11 mm a step for tiny_fe_r1) grew to 1.75 mm and decayed (measured
-/// 2026-12-01; 0.25 mm with the finer output rows before), so the bound
-/// is 2.5 mm.
+/// (`Reach<f32, _>` with the model's skeleton) over the fixed-point
+/// runtime, sized statically for the model, follows the host's loop over
+/// the same blob (f64 glue) on the reference clips; the glue's f32
+/// rounding (forward kinematics, the limit stage, the costs) is all that
+/// differs. Bound: 1 mm over 100 frames.
 #[test]
 fn the_f32_reaching_loop_over_the_runtime_follows_the_host_loop() {
     use phasegate_controller::{CostMode, Reach};
@@ -418,20 +503,31 @@ fn the_f32_reaching_loop_over_the_runtime_follows_the_host_loop() {
     let d = load_dir(&model_dir("tiny_fe_r1")).unwrap();
     let blob = export(&d, WeightFormat::I16, &opts).unwrap();
     let model = phasegate::Model::from_bytes(&blob).unwrap();
-    // The blob's own activation plan, as a device would size it.
     let mut rt: Box<phasegate::Runtime<'_, 2048>> =
         Box::new(phasegate::Runtime::new(model).unwrap());
     let layout = host_sim::omg::reach_layout(&d.omg).unwrap();
+    let form = d.omg.dof.as_ref().expect("a joint-velocity model");
+    let skeleton = host_sim::omg::skeleton::<f32>(&form.skeleton).unwrap();
     let mut host = host_sim::omg::FixedOmg::new(&blob).unwrap();
     let mut worst = 0f64;
+    let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
     for c in 0..d.refs.targets.dims[0] {
         let want = host_sim::omg::reference_rollout(&d, c, &mut host).unwrap();
-        let first: Vec<f32> = d.refs.inputs.row(c, 0).iter().map(|&v| v as f32).collect();
-        let mut r: Box<Reach<f32, 448>> =
-            Box::new(Reach::new(&*rt, layout.clone(), CostMode::Grounded, &first).unwrap());
+        let start = host_sim::omg::reference_start(&d, c);
+        let mut r: Box<Reach<f32, 512>> = Box::new(
+            Reach::with_dofs(
+                &*rt,
+                layout.clone(),
+                CostMode::Grounded,
+                &f32s(&start.first),
+                skeleton.clone(),
+                &f32s(&start.q0),
+                &f32s(&start.v0),
+            )
+            .unwrap(),
+        );
         for (t, w) in want.iter().enumerate().skip(1).take(100) {
-            let tb: Vec<f32> = d.refs.targets.row(c, t).iter().map(|&v| v as f32).collect();
-            r.set_target_block(&tb).unwrap();
+            r.set_target_block(&f32s(d.refs.targets.row(c, t))).unwrap();
             let pose = r.step(&mut *rt).unwrap();
             for (a, b) in pose.positions.iter().zip(&w[layout.pos.clone()]) {
                 worst = worst.max((f64::from(*a) - b).abs());
@@ -441,7 +537,7 @@ fn the_f32_reaching_loop_over_the_runtime_follows_the_host_loop() {
     eprintln!(
         "f32 loop vs f64 glue, same int16 blob, 100 frames: max position difference {worst:.2e} m"
     );
-    assert!(worst < 2.5e-3, "{worst}");
+    assert!(worst < 1e-3, "{worst}");
 }
 
 /// `omg-reach --calibration-clips N`: the int8 blob's recorded calibration

@@ -702,7 +702,7 @@ mod tests {
     /// QEMU: its skeleton and start state travel in the setup, and every
     /// frame (FK pose included) and target outcome equals the host's
     /// `Reach<f32>`, a refused target included; within budget. Skipped
-    /// without QEMU or a joint-velocity model (`omg::tests::dof_model`).
+    /// without QEMU. The model is `omg::tests::dof_model`.
     #[test]
     fn a_dof_model_on_qemu_is_bit_exact_with_the_host_loop() {
         if !qemu_available() {
@@ -711,9 +711,7 @@ mod tests {
             );
             return;
         }
-        let Some(dir) = crate::omg::tests::dof_model() else {
-            return;
-        };
+        let dir = crate::omg::tests::dof_model();
         let d = load_dir(&dir).unwrap();
         let i8 = phasegate::blob::WeightFormat::I8;
         let blob = crate::omg::export(&d, i8, &crate::omg::exporter_options(i8)).unwrap();
