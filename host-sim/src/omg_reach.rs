@@ -239,29 +239,10 @@ pub struct ReachRow {
     pub run: String,
     /// Blob bytes (the rig blob's for rig blobs; 0 for the others).
     pub blob_bytes: usize,
-    /// Hand targets counted (the hand started farther than
-    /// [`CONTACT_RADIUS_M`] from them).
-    pub targets: usize,
-    /// Hand targets the hand started within reach of (not counted).
-    pub near_start: usize,
-    /// Share of the counted targets reached.
-    pub reach: f64,
-    /// Share plausibly reached (every bone within 1 cm of its rest length
-    /// on the frame within reach).
-    pub plausible_reach: f64,
-    /// Median frames from a target's start to its first plausible reach.
-    pub frames_median: Option<f64>,
-    /// Mean distance on the targets' last frames, metres.
-    pub final_m: f64,
-    /// Median bone-length error over every bone and frame, cm.
-    pub bone_err_p50_cm: f64,
-    /// 99th percentile of the bone-length error, cm.
-    pub bone_err_p99_cm: f64,
-    /// Roughness (RMS over frames of the mean joint rotation change),
-    /// radians per frame, mean over clips (JSON `roughness`, as
-    /// `metrics.py` names it).
-    #[serde(rename = "roughness")]
-    pub rms: f64,
+    /// Targets counted and reached, frames to reach, final distance, bone
+    /// error and roughness (JSON: the same keys, at the row's top level).
+    #[serde(flatten)]
+    pub summary: ReachSummary,
     /// Mean joint position error against the data, cm (NaN on the target
     /// scripts, which have no data; left out of the JSON there).
     #[serde(skip_serializing_if = "is_nan")]
@@ -282,15 +263,7 @@ impl ReachRow {
         ReachRow {
             run: run.into(),
             blob_bytes,
-            targets: s.targets,
-            near_start: s.near_start,
-            reach: s.reach,
-            plausible_reach: s.plausible_reach,
-            frames_median: s.frames_median,
-            final_m: s.final_m,
-            bone_err_p50_cm: s.bone_err_p50_cm,
-            bone_err_p99_cm: s.bone_err_p99_cm,
-            rms: s.roughness,
+            summary: s,
             joint_vs_data_cm,
             vs_f64: None,
             saturated: None,
@@ -925,15 +898,15 @@ fn rows_table(rows: &[ReachRow]) -> String {
             "{:<11} {:>7} {:>10} ({:>4}) {:>8.1} {:>12.1} {:>16} {:>8.3} {:>11.2} / {:<6.2} {:>10.4} {:>17} | {}\n",
             r.run,
             r.blob_bytes,
-            r.targets,
-            r.near_start,
-            100.0 * r.reach,
-            100.0 * r.plausible_reach,
-            r.frames_median.map_or("-".to_string(), |f| format!("{f:.1}")),
-            r.final_m,
-            r.bone_err_p50_cm,
-            r.bone_err_p99_cm,
-            r.rms,
+            r.summary.targets,
+            r.summary.near_start,
+            100.0 * r.summary.reach,
+            100.0 * r.summary.plausible_reach,
+            r.summary.frames_median.map_or("-".to_string(), |f| format!("{f:.1}")),
+            r.summary.final_m,
+            r.summary.bone_err_p50_cm,
+            r.summary.bone_err_p99_cm,
+            r.summary.roughness,
             joint,
             vs
         );
@@ -953,7 +926,7 @@ fn bars(rows: &[ReachRow], on: &str) -> String {
         let Some(v) = &r.vs_f64 else {
             continue;
         };
-        let pp = 100.0 * (r.plausible_reach - f.plausible_reach);
+        let pp = 100.0 * (r.summary.plausible_reach - f.summary.plausible_reach);
         let bar_cm = if r.run.starts_with("int16") { 1.0 } else { 2.0 };
         let p99 = 100.0 * v.p99_joint_m;
         let verdict = |ok: bool| if ok { "met" } else { "NOT met" };
@@ -1127,7 +1100,10 @@ mod tests {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
         let embedded = root.join("models/omg/tiny_fe_r1");
         let d = load_dir(&embedded).unwrap();
-        assert!(d.omg.dof.is_some(), "the embedded default is a joint-velocity model");
+        assert!(
+            d.omg.dof.is_some(),
+            "the embedded default is a joint-velocity model"
+        );
         let set = load_scripts(&d.omg, &root.join("tools/omg/scripts")).unwrap();
         assert_eq!(set.names.len(), 28);
         assert_eq!(set.names[0], "01-front-chest-both");

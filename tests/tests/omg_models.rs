@@ -222,7 +222,11 @@ fn reach_metrics_match_the_numpy_evaluation() {
             sets.push(("scripts", s.rows.clone()));
         }
         for (set, rows) in sets {
-            for (run, py) in [("f64", "f64"), ("data", "data"), ("hold still", "hold still")] {
+            for (run, py) in [
+                ("f64", "f64"),
+                ("data", "data"),
+                ("hold still", "hold still"),
+            ] {
                 let Some(x) = rows.iter().find(|x| x.run == run) else {
                     continue;
                 };
@@ -237,23 +241,33 @@ fn reach_metrics_match_the_numpy_evaluation() {
                         "{name} {set} {run} {key}: host-sim {a}, NumPy {b}"
                     );
                 };
-                assert_eq!(x.targets, w["targets"].as_u64().unwrap() as usize, "{name} {set} {run}");
-                assert_eq!(x.near_start, w["near_start"].as_u64().unwrap() as usize);
-                close(x.reach, "reach", 1e-9);
-                close(x.plausible_reach, "plausible_reach", 1e-9);
-                if let Some(f) = x.frames_median {
+                assert_eq!(
+                    x.summary.targets,
+                    w["targets"].as_u64().unwrap() as usize,
+                    "{name} {set} {run}"
+                );
+                assert_eq!(
+                    x.summary.near_start,
+                    w["near_start"].as_u64().unwrap() as usize
+                );
+                close(x.summary.reach, "reach", 1e-9);
+                close(x.summary.plausible_reach, "plausible_reach", 1e-9);
+                if let Some(f) = x.summary.frames_median {
                     close(f, "frames_median", 1e-9);
                 }
-                close(x.final_m, "final_m", 1e-5);
-                close(x.bone_err_p99_cm, "bone_err_p99_cm", 1e-3);
-                close(x.rms, "roughness", 1e-6);
+                close(x.summary.final_m, "final_m", 1e-5);
+                close(x.summary.bone_err_p99_cm, "bone_err_p99_cm", 1e-3);
+                close(x.summary.roughness, "roughness", 1e-6);
             }
         }
         // The blobs ran the same clips and were compared with the f64 rollout.
         let f = r.rows.iter().find(|x| x.run == "f64").unwrap();
         for run in ["int16", "int8"] {
             let b = r.rows.iter().find(|x| x.run == run).unwrap();
-            assert_eq!(b.targets + b.near_start, f.targets + f.near_start);
+            assert_eq!(
+                b.summary.targets + b.summary.near_start,
+                f.summary.targets + f.summary.near_start
+            );
             assert!(
                 b.vs_f64.as_ref().unwrap().frames == r.clips * 300,
                 "{name} {run}"
@@ -336,11 +350,11 @@ fn reach_bars_on_every_committed_model() {
                 sat.summary()
             );
             assert!(
-                (b.plausible_reach - f.plausible_reach).abs() <= 0.02 + 1e-12,
+                (b.summary.plausible_reach - f.summary.plausible_reach).abs() <= 0.02 + 1e-12,
                 "{name} {}: plausible reach {} against {}",
                 b.run,
-                b.plausible_reach,
-                f.plausible_reach
+                b.summary.plausible_reach,
+                f.summary.plausible_reach
             );
         }
     }
@@ -380,19 +394,25 @@ fn the_reaching_bars_hold() {
         rows.iter().find(|x| x.run == run).unwrap().clone()
     };
     let (int8, data_row) = (row(&r.rows, "int8"), row(&r.rows, "data"));
-    assert!(int8.plausible_reach >= 0.60, "{int8:?}");
+    assert!(int8.summary.plausible_reach >= 0.60, "{int8:?}");
     assert!(
-        int8.frames_median.unwrap() <= 1.5 * data_row.frames_median.unwrap(),
+        int8.summary.frames_median.unwrap() <= 1.5 * data_row.summary.frames_median.unwrap(),
         "{int8:?} {data_row:?}"
     );
-    assert!(int8.final_m <= 0.12, "{int8:?}");
-    assert!(int8.bone_err_p99_cm <= 1.0, "{int8:?}");
-    assert!(int8.rms <= 1.5 * data_row.rms, "{int8:?} {data_row:?}");
+    assert!(int8.summary.final_m <= 0.12, "{int8:?}");
+    assert!(int8.summary.bone_err_p99_cm <= 1.0, "{int8:?}");
+    assert!(
+        int8.summary.roughness <= 1.5 * data_row.summary.roughness,
+        "{int8:?} {data_row:?}"
+    );
     let scripts = r.scripts.as_ref().unwrap();
     assert!(scripts.skipped.is_none());
     let s8 = row(&scripts.rows, "int8");
-    assert!(s8.plausible_reach >= 0.60, "{s8:?}");
-    assert!(s8.targets >= 60, "most script targets count: {s8:?}");
+    assert!(s8.summary.plausible_reach >= 0.60, "{s8:?}");
+    assert!(
+        s8.summary.targets >= 60,
+        "most script targets count: {s8:?}"
+    );
 
     let frozen = host_sim::omg_reach::measure(
         &model_dir("tiny_fe_r4_frozen"),
@@ -403,13 +423,20 @@ fn the_reaching_bars_hold() {
         None,
     )
     .unwrap();
-    let raw = host_sim::omg_reach::measure(&model_dir("tiny_fe_r4_raw"), &data, &opts, &knobs, None, None)
-        .unwrap();
+    let raw = host_sim::omg_reach::measure(
+        &model_dir("tiny_fe_r4_raw"),
+        &data,
+        &opts,
+        &knobs,
+        None,
+        None,
+    )
+    .unwrap();
     eprint!("{}{}", frozen.table(), raw.table());
     let (f8, r8) = (row(&frozen.rows, "int8 rig"), row(&raw.rows, "int8"));
-    assert!(f8.plausible_reach >= 0.50, "{f8:?}");
+    assert!(f8.summary.plausible_reach >= 0.50, "{f8:?}");
     assert!(
-        f8.plausible_reach > r8.plausible_reach,
+        f8.summary.plausible_reach > r8.summary.plausible_reach,
         "Frozen {f8:?} against Raw {r8:?}"
     );
 }

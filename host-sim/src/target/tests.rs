@@ -1630,7 +1630,10 @@ fn motion_blob_with_two_rig_blobs_is_bit_exact_on_the_target() {
         std::fs::write(&path, bytes).unwrap();
         path
     };
-    for (d, rig, dims) in [(&r4, "R4", (356, 8 + 24 + 24)), (&r1, "R1", (440, 8 + 30 + 24))] {
+    for (d, rig, dims) in [
+        (&r4, "R4", (356, 8 + 24 + 24)),
+        (&r1, "R1", (440, 8 + 30 + 24)),
+    ] {
         let path = rig_of(d, &motion, rig);
         let report = execute(&TargetArgs {
             model: motion_path.clone(),

@@ -154,8 +154,12 @@ def test_grounded_rollout_matches_reference(model, dtype, rtol, atol):
     sk = m.cfg["controller"]["skeleton"]
     pos = out[:, :, slice(*m.cfg["slices"]["pos"])].reshape(out.shape[0], 300, -1, 3)
     err = np.abs(bone_lengths(pos, sk["parents"]) - rest_bone_lengths(sk["offsets"], sk["parents"]))
-    assert err.max() < (1e-9 if dtype == np.float64 else 1e-5)
-    assert (qs >= m.rig.lower - 1e-12).all() and (qs <= m.rig.upper + 1e-12).all()
+    # frame 0 is the stored (float32) start frame; the rest come from forward kinematics
+    assert err[:, 0].max() < 2e-6
+    assert err[:, 1:].max() < (1e-9 if dtype == np.float64 else 1e-5)
+    # float32 joint angles clamped to a limit sit within one float32 rounding of it
+    tol = 1e-12 if dtype == np.float64 else 1e-6
+    assert (qs >= m.rig.lower - tol).all() and (qs <= m.rig.upper + tol).all()
     # the rollout's cost block is the recomputed one (from float32-stored frames here: acos
     # near 0 amplifies a 1e-7 difference of a dot product to about 1e-4)
     np.testing.assert_allclose(costs_from_frame(ro[:, 1:].astype(np.float64), m.cfg),
