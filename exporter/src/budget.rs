@@ -19,9 +19,9 @@ use phasegate::blob::WeightFormat;
 use phasegate::{Model, Phase, Runtime};
 use serde::Serialize;
 
-use crate::calibrate::{normal_inputs, Samples};
 use crate::control_points::Residual;
 use crate::export::{export, ExportError, ExportReport};
+use crate::io::samples::{normal_inputs, Samples};
 use crate::net::{GraphOp, Net, Wiring};
 use crate::quantise::QuantOptions;
 

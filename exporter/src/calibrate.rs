@@ -3,48 +3,11 @@
 //! activation format from these ranges; the accuracy checks reuse the same
 //! sampler so that both speak of the same input distribution.
 
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-use rand_distr::StandardNormal;
-use std::f64::consts::TAU;
-
 use ndarray::Array1;
 
 use crate::net::Net;
 
-/// Raw inputs (model units) and phases (radians).
-#[derive(Clone, Debug, Default)]
-pub struct Samples {
-    /// One input vector per sample.
-    pub inputs: Vec<Vec<f64>>,
-    /// One phase per sample, uniform in `[0, 2 pi)`.
-    pub phases: Vec<f64>,
-}
-
-impl Samples {
-    /// Appends `other`'s rows.
-    pub fn extend(&mut self, other: &Samples) {
-        self.inputs.extend_from_slice(&other.inputs);
-        self.phases.extend_from_slice(&other.phases);
-    }
-}
-
-/// `n` inputs `mean + std * N(0, 1) * scale` with uniform random phases,
-/// from a ChaCha8 stream seeded by `seed` (same on every platform).
-pub fn normal_inputs(mean: &[f64], std: &[f64], n: usize, scale: f64, seed: u64) -> Samples {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut s = Samples::default();
-    for _ in 0..n {
-        let x = mean
-            .iter()
-            .zip(std)
-            .map(|(&m, &sd)| m + sd * rng.sample::<f64, _>(StandardNormal) * scale)
-            .collect();
-        s.inputs.push(x);
-        s.phases.push(rng.gen_range(0.0..TAU));
-    }
-    s
-}
+pub use crate::io::samples::{normal_inputs, Samples};
 
 /// Largest magnitudes and mean squares the float network reached, per
 /// layer: what the quantiser picks every format from.

@@ -1,7 +1,6 @@
 //! From a float [`Net`] to blob bytes and the one export report, whatever
 //! the importer and the ops.
 
-use phasegate::blob::WeightFormat;
 use phasegate::Model;
 use serde::Serialize;
 
@@ -76,7 +75,7 @@ pub enum ExportError {
     Quant(#[from] crate::quantise::QuantError),
     /// Encoding failed.
     #[error(transparent)]
-    Encode(#[from] crate::encode::EncodeError),
+    Encode(#[from] crate::lower::qmodel::EncodeError),
     /// The blob written does not load: a bug, never shipped.
     #[error("the blob written does not load back: {0}")]
     SelfCheck(phasegate::Error),
@@ -87,13 +86,7 @@ pub const PROOF_STATEMENT: &str = "for every row: sum|w|*2^15 fits the accumulat
 the gate-blended sum max_k(sum|w_k|*2^15+|b_k|)*sum|g| < 2^63, and the pre-shift brings that bound below 2^31; \
 activations are i16, so this holds for any input, not only the calibrated range";
 
-/// "int8" or "int16".
-pub fn format_name(w: WeightFormat) -> &'static str {
-    match w {
-        WeightFormat::I8 | WeightFormat::I8Interleaved => "int8",
-        WeightFormat::I16 => "int16",
-    }
-}
+pub use crate::lower::qmodel::format_name;
 
 /// Quantises, encodes and re-loads `net`; returns the blob and its report.
 /// `residual` is the control-point recovery residual of a cubic PFNN, for

@@ -296,8 +296,8 @@ fn read_f32_file(path: &Path, len: usize) -> Result<Vec<f32>, ImportError> {
     // rejected without loading it.
     let meta = fs::metadata(path).map_err(|e| ImportError::from_io(path.to_path_buf(), e))?;
     check_size(path, expected, meta.len())?;
-    let bytes =
-        crate::atomic::read_input(path).map_err(|e| ImportError::from_io(path.to_path_buf(), e))?;
+    let bytes = crate::io::atomic::read_input(path)
+        .map_err(|e| ImportError::from_io(path.to_path_buf(), e))?;
     // Again after reading: the file may have changed in between.
     check_size(path, expected, bytes.len() as u64)?;
     let values: Vec<f32> = bytes

@@ -16,7 +16,7 @@
 use phasegate::blob::{Header, Nodes, Span};
 use phasegate::graph::{buffers, in_place, locate, Buffer, Role};
 
-use crate::encode::EncodeError;
+use crate::lower::qmodel::EncodeError;
 
 /// Random orders tried after the five fixed ones when none reaches the
 /// lower bound.

@@ -23,7 +23,7 @@ use phasegate::blob::{
 use serde::Serialize;
 
 use crate::calibrate::{calibrate, Ranges};
-use crate::encode::{QKind, QLayer, QModel, Wiring};
+use crate::lower::qmodel::{QKind, QLayer, QModel, Wiring};
 
 pub mod graph;
 pub mod moments;
@@ -88,35 +88,7 @@ pub const DEFAULT_COMPENSATION_SAMPLES: usize = 16_384;
 /// fidelity` scores (docs/fixed-point.md, "Rounding for the closed loop").
 pub const DEFAULT_CALIBRATION_WEIGHT: f64 = 0.7;
 
-/// Recorded calibration inputs and where they came from.
-#[derive(Clone, Debug)]
-pub struct Recorded {
-    /// The file, for the report.
-    pub source: String,
-    /// The rows.
-    pub samples: std::sync::Arc<crate::calibrate::Samples>,
-}
-
-impl Recorded {
-    /// Reads a rollout data set (`host-sim rollout-dataset`'s `.npz`) for a
-    /// model of `input_dim` inputs.
-    pub fn read(path: &std::path::Path, input_dim: usize) -> anyhow::Result<Recorded> {
-        Ok(Recorded {
-            source: path.display().to_string(),
-            samples: std::sync::Arc::new(crate::cp::distill::read_distill_data(path, input_dim)?),
-        })
-    }
-}
-
-impl Serialize for Recorded {
-    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        use serde::ser::SerializeStruct;
-        let mut st = s.serialize_struct("Recorded", 2)?;
-        st.serialize_field("source", &self.source)?;
-        st.serialize_field("rows", &self.samples.inputs.len())?;
-        st.end()
-    }
-}
+pub use crate::io::samples::Recorded;
 
 impl QuantOptions {
     /// Weight storage of layer `l`.
@@ -131,12 +103,12 @@ fn ser_layer_weights<S: serde::Serializer>(
 ) -> Result<S::Ok, S::Error> {
     s.collect_map(
         w.iter()
-            .map(|(l, f)| (l.to_string(), crate::export::format_name(*f))),
+            .map(|(l, f)| (l.to_string(), crate::lower::qmodel::format_name(*f))),
     )
 }
 
 fn ser_weight_format<S: serde::Serializer>(w: &WeightFormat, s: S) -> Result<S::Ok, S::Error> {
-    s.serialize_str(crate::export::format_name(*w))
+    s.serialize_str(crate::lower::qmodel::format_name(*w))
 }
 
 impl Default for QuantOptions {
@@ -515,7 +487,7 @@ pub(crate) fn layer_report(
         out_dim: usize::from(layer.desc.out_dim),
         experts: usize::from(layer.desc.experts),
         rank,
-        weights: crate::export::format_name(spec.format),
+        weights: crate::lower::qmodel::format_name(spec.format),
         accumulator: acc_name(layer.desc.acc),
         out_frac_range: (spec.activation == Activation::Elu && !spec.fracs.is_empty())
             .then_some(fracs),
@@ -665,7 +637,7 @@ fn compensated(net: &Net, opts: &QuantOptions, l: usize) -> bool {
 /// `compensation_samples` normal samples, then the recorded rows, which
 /// together carry `calibration_weight` of the moments' weight.
 fn compensation_inputs(net: &Net, opts: &QuantOptions) -> moments::WeightedSamples {
-    let mut weighted = moments::WeightedSamples::uniform(crate::calibrate::normal_inputs(
+    let mut weighted = moments::WeightedSamples::uniform(crate::io::samples::normal_inputs(
         &net.xmean.to_vec(),
         &net.xstd.to_vec(),
         opts.compensation_samples,

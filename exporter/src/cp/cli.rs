@@ -6,7 +6,6 @@ use phasegate::blob::WeightFormat;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
-use crate::calibrate::{normal_inputs, Samples};
 use crate::cp::als::{AlsOptions, AlsResult};
 use crate::cp::distill::{
     distill, DistillData, DistillOptions, DistillReport, DEFAULT_NORMAL_FRACTION,
@@ -16,6 +15,7 @@ use crate::cp::report::{
     measure_ranks, output_error, run_blob, run_float, tables_error, OutputError,
 };
 use crate::export::{export, ExportReport};
+use crate::io::samples::{normal_inputs, Samples};
 use crate::net::{CpLayer, Net, NetLayer};
 use crate::net::{ExpertLayer, GatingMode};
 use crate::quantise::QuantOptions;
@@ -397,9 +397,9 @@ pub fn write_both<T: Serialize>(
     json: Option<&Path>,
 ) -> Result<()> {
     if let Some(path) = json {
-        crate::atomic::write_atomic(path, &serde_json::to_vec_pretty(report)?)?;
+        crate::io::atomic::write_atomic(path, &serde_json::to_vec_pretty(report)?)?;
     }
-    if let Err(e) = crate::atomic::write_atomic(output, blob) {
+    if let Err(e) = crate::io::atomic::write_atomic(output, blob) {
         if let Some(path) = json {
             let _ = std::fs::remove_file(path);
         }
@@ -610,7 +610,7 @@ pub fn cp_report(args: &CpReportArgs) -> Result<()> {
         |m| eprintln!("{m}"),
     )?;
     if let Some(p) = &args.json {
-        crate::atomic::write_atomic(p, &serde_json::to_vec_pretty(&report)?)?;
+        crate::io::atomic::write_atomic(p, &serde_json::to_vec_pretty(&report)?)?;
     }
     print!("{}", report.table());
     Ok(())

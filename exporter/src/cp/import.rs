@@ -33,109 +33,21 @@
 #![deny(clippy::arithmetic_side_effects)]
 
 use anyhow::{anyhow, bail, Context, Result};
-use half::{bf16, f16};
 use ndarray::{Array1, Array2};
-use safetensors::{Dtype, SafeTensors};
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use crate::io::tensors::NpArray;
 use crate::net::{Adapter, CpLayer, DiagLayer, Net, NetLayer};
 use crate::net::{ExpertLayer, GatingMode};
-use crate::npz::{read_npz, NpArray};
 
-/// Reads every float array of a `.safetensors` file.
-pub fn read_safetensors(path: &Path) -> Result<BTreeMap<String, NpArray>> {
-    let bytes = crate::atomic::read_input(path)
-        .with_context(|| format!("cannot read {}", path.display()))?;
-    parse_safetensors(&bytes).with_context(|| format!("{}", path.display()))
-}
-
-/// Every float tensor of `.safetensors` bytes, as f64. The container (an
-/// 8-byte header length, the JSON header, the data; offsets in bounds,
-/// contiguous and not overlapping, sizes that fit) is checked by the
-/// `safetensors` crate; here only the dtypes and the values.
-pub fn parse_safetensors(bytes: &[u8]) -> Result<BTreeMap<String, NpArray>> {
-    let st = SafeTensors::deserialize(bytes)
-        .map_err(|e| anyhow!("not a valid safetensors file: {e}"))?;
-    let mut out = BTreeMap::new();
-    for (name, view) in st.tensors() {
-        let (width, conv): (usize, fn(&[u8]) -> f64) = match view.dtype() {
-            Dtype::F64 => (8, |b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]))),
-            Dtype::F32 => (4, |b| {
-                f64::from(f32::from_le_bytes(b.try_into().unwrap_or([0; 4])))
-            }),
-            Dtype::F16 => (2, |b| {
-                f16::from_le_bytes(b.try_into().unwrap_or([0; 2])).to_f64()
-            }),
-            Dtype::BF16 => (2, |b| {
-                bf16::from_le_bytes(b.try_into().unwrap_or([0; 2])).to_f64()
-            }),
-            other => bail!("tensor {name} has dtype {other:?}, expected F64, F32, F16 or BF16"),
-        };
-        let values: Vec<f64> = view.data().chunks_exact(width).map(conv).collect();
-        if let Some(k) = values.iter().position(|v| !v.is_finite()) {
-            bail!("tensor {name} has a non-finite value at index {k}");
-        }
-        let shape = view
-            .shape()
-            .iter()
-            .map(|&d| u64::try_from(d))
-            .collect::<Result<Vec<u64>, _>>()?;
-        out.insert(
-            name.clone(),
-            NpArray::new(shape, values).with_context(|| format!("tensor {name}"))?,
-        );
-    }
-    Ok(out)
-}
-
-/// Writes f32 arrays as a `.safetensors` file (the layout
-/// `safetensors.torch.save_file` writes), atomically.
-pub fn write_safetensors(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> Result<()> {
-    crate::atomic::write_atomic(path, &safetensors_bytes(arrays)?)
-}
-
-/// f32 arrays as the bytes of a `.safetensors` file.
-pub fn safetensors_bytes(arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> Result<Vec<u8>> {
-    let bytes: Vec<(String, Vec<u8>, Vec<usize>)> = arrays
-        .iter()
-        .map(|(name, shape, data)| {
-            (
-                name.to_string(),
-                data.iter().flat_map(|v| v.to_le_bytes()).collect(),
-                shape.iter().map(|&d| d as usize).collect(),
-            )
-        })
-        .collect();
-    let views = bytes
-        .iter()
-        .map(|(name, data, shape)| {
-            safetensors::tensor::TensorView::new(Dtype::F32, shape.clone(), data)
-                .map(|v| (name.clone(), v))
-                .map_err(|e| anyhow!("tensor {name}: {e}"))
-        })
-        .collect::<Result<Vec<_>>>()?;
-    safetensors::serialize(views, None).map_err(|e| anyhow!("{e}"))
-}
-
-/// Writes `.npz` or `.safetensors` (by extension).
-pub fn write_arrays(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> Result<()> {
-    match path.extension().and_then(|e| e.to_str()) {
-        Some("safetensors") => write_safetensors(path, arrays),
-        _ => crate::npz::write_npz(path, arrays),
-    }
-}
-
-/// Reads `.npz` or `.safetensors` (by extension).
-pub fn read_arrays(path: &Path) -> Result<BTreeMap<String, NpArray>> {
-    match path.extension().and_then(|e| e.to_str()) {
-        Some("safetensors") => read_safetensors(path),
-        _ => read_npz(path),
-    }
-}
+pub use crate::io::tensors::{
+    parse_safetensors, read_arrays, read_safetensors, safetensors_bytes, write_arrays,
+    write_safetensors,
+};
 
 fn matrix(a: &NpArray, name: &str) -> Result<Array2<f64>> {
-    match crate::sizes::dims::<2>(&a.shape) {
+    match crate::io::sizes::dims::<2>(&a.shape) {
         Some([r, c]) => Array2::from_shape_vec((r, c), a.data.clone())
             .map_err(|e| anyhow!("array {name} of shape {:?}: {e}", a.shape)),
         None => bail!(
@@ -164,14 +76,14 @@ fn rows(m: &Array2<f64>) -> Vec<Array1<f64>> {
 }
 
 fn dense(w: &NpArray, name: &str) -> Result<Vec<Array2<f64>>> {
-    let Some([k, r, c]) = crate::sizes::dims::<3>(&w.shape) else {
+    let Some([k, r, c]) = crate::io::sizes::dims::<3>(&w.shape) else {
         bail!(
             "array {name} has shape {:?}, expected (K, out, in)",
             w.shape
         );
     };
-    let per = crate::sizes::mul(r, c, name)?;
-    if k == 0 || per == 0 || crate::sizes::element_count(&w.shape) != Some(w.data.len()) {
+    let per = crate::io::sizes::mul(r, c, name)?;
+    if k == 0 || per == 0 || crate::io::sizes::element_count(&w.shape) != Some(w.data.len()) {
         bail!(
             "array {name} of shape {:?} is empty or does not hold its elements",
             w.shape
@@ -436,7 +348,7 @@ pub fn write_cp_net(net: &Net, path: &Path) -> Result<()> {
         .iter()
         .map(|(n, s, d)| (n.as_str(), s.clone(), d.clone()))
         .collect();
-    crate::npz::write_npz(path, &refs)
+    crate::io::tensors::write_npz(path, &refs)
 }
 
 /// Writes an adapter in the layout above (float32).
@@ -447,7 +359,7 @@ pub fn write_adapter(adapter: &Adapter, path: &Path) -> Result<()> {
         .iter()
         .map(|(n, s, d)| (n.as_str(), s.clone(), d.clone()))
         .collect();
-    crate::npz::write_npz(path, &refs)
+    crate::io::tensors::write_npz(path, &refs)
 }
 
 #[cfg(test)]
@@ -510,79 +422,6 @@ mod tests {
         let q = dir.path().join("ad.npz");
         write_adapter(&ad, &q).unwrap();
         assert_eq!(read_adapter(&q, 1).unwrap(), ad);
-    }
-
-    #[test]
-    fn safetensors_are_read_with_every_float_dtype() {
-        let mut header = serde_json::json!({
-            "__metadata__": {"format": "pt"},
-            "A": {"dtype": "F32", "shape": [2, 1], "data_offsets": [0, 8]},
-            "D": {"dtype": "BF16", "shape": [1, 1], "data_offsets": [8, 10]},
-            "h": {"dtype": "F16", "shape": [2], "data_offsets": [10, 14]},
-            "x": {"dtype": "F64", "shape": [1], "data_offsets": [14, 22]},
-        })
-        .to_string()
-        .into_bytes();
-        while !header.len().is_multiple_of(8) {
-            header.push(b' ');
-        }
-        let mut bytes = (header.len() as u64).to_le_bytes().to_vec();
-        bytes.extend(&header);
-        bytes.extend(1.5f32.to_le_bytes());
-        bytes.extend((-2.0f32).to_le_bytes());
-        bytes.extend(((0.75f32.to_bits() >> 16) as u16).to_le_bytes());
-        bytes.extend(0x3C00u16.to_le_bytes()); // 1.0 in f16
-        bytes.extend(0xC100u16.to_le_bytes()); // -2.5 in f16
-        bytes.extend(0.1f64.to_le_bytes());
-        let a = parse_safetensors(&bytes).unwrap();
-        assert_eq!(a["A"].data, vec![1.5, -2.0]);
-        assert_eq!(a["A"].shape, vec![2, 1]);
-        assert_eq!(a["D"].data, vec![0.75]);
-        assert_eq!(a["h"].data, vec![1.0, -2.5]);
-        assert_eq!(a["x"].data, vec![0.1]);
-        assert!(parse_safetensors(&bytes[..20]).is_err());
-    }
-
-    /// A safetensors file of the tensors `(name, shape, data_offsets)` over
-    /// `data_len` bytes of F32 zeros.
-    fn safetensors_bytes(tensors: &[(&str, Vec<u64>, [u64; 2])], data_len: usize) -> Vec<u8> {
-        let mut map = serde_json::Map::new();
-        for (n, shape, offs) in tensors {
-            map.insert(
-                n.to_string(),
-                serde_json::json!({"dtype": "F32", "shape": shape, "data_offsets": offs}),
-            );
-        }
-        let mut header = serde_json::Value::Object(map).to_string().into_bytes();
-        while !header.len().is_multiple_of(8) {
-            header.push(b' ');
-        }
-        let mut bytes = (header.len() as u64).to_le_bytes().to_vec();
-        bytes.extend(&header);
-        bytes.resize(bytes.len() + data_len, 0);
-        bytes
-    }
-
-    #[test]
-    fn malformed_safetensors_containers_are_refused() {
-        let ok = safetensors_bytes(&[("a", vec![2], [0, 8]), ("b", vec![2], [8, 16])], 16);
-        assert_eq!(parse_safetensors(&ok).unwrap().len(), 2);
-        // Overlapping tensors (the format forbids them).
-        let overlap = safetensors_bytes(&[("a", vec![2], [0, 8]), ("b", vec![2], [4, 12])], 16);
-        // A shape whose element count overflows 64 bits.
-        let huge = safetensors_bytes(&[("a", vec![1 << 32, 1 << 32, 16], [0, 8])], 8);
-        // A shape that does not match its bytes, and offsets past the end.
-        let short = safetensors_bytes(&[("a", vec![3], [0, 8])], 8);
-        let past = safetensors_bytes(&[("a", vec![2], [0, 8])], 4);
-        for (what, bytes) in [
-            ("overlap", overlap),
-            ("huge", huge),
-            ("short", short),
-            ("past", past),
-        ] {
-            let e = parse_safetensors(&bytes).unwrap_err().to_string();
-            assert!(e.contains("not a valid safetensors file"), "{what}: {e}");
-        }
     }
 
     #[test]

@@ -17,10 +17,10 @@ use phasegate::blob::WeightFormat;
 use phasegate::{Model, Phase, Runtime};
 use serde::Serialize;
 
-use crate::calibrate::normal_inputs;
 use crate::control_points::spline_basis;
 use crate::cp::als::AlsOptions;
 use crate::export::{export, format_name};
+use crate::io::samples::normal_inputs;
 use crate::net::{CpLayer, Net, NetLayer};
 use crate::net::{ExpertLayer, GatingMode};
 use crate::quantise::QuantOptions;

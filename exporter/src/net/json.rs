@@ -32,7 +32,7 @@ use serde::{Deserialize, Serialize};
 
 use super::graph::{Graph, GraphNode, GraphOp};
 use super::{ExpertLayer, GatingMode, Net, NetLayer, Wiring};
-use crate::npz::NpArray;
+use crate::io::tensors::NpArray;
 use phasegate::blob::{GateSource, Slice, Source, MAX_NODES, MAX_NODE_INPUTS};
 
 /// The `format` field.
@@ -166,8 +166,8 @@ fn dense(
         .get(weight)
         .ok_or_else(|| anyhow!("missing array {weight:?}"))?;
     let (k, out, inp) = match (
-        crate::sizes::dims::<2>(&w.shape),
-        crate::sizes::dims::<3>(&w.shape),
+        crate::io::sizes::dims::<2>(&w.shape),
+        crate::io::sizes::dims::<3>(&w.shape),
     ) {
         (Some([o, i]), _) => (1, o, i),
         (_, Some([k, o, i])) => (k, o, i),
@@ -180,13 +180,13 @@ fn dense(
         bail!("array {weight:?} has {inp} inputs, but the node's input slices give {in_dim}");
     }
     let (per, rows) = (
-        crate::sizes::mul(out, inp, weight)?,
-        crate::sizes::mul(k, out, weight)?,
+        crate::io::sizes::mul(out, inp, weight)?,
+        crate::io::sizes::mul(k, out, weight)?,
     );
     if k == 0 || per == 0 {
         bail!("array {weight:?} is empty");
     }
-    if crate::sizes::element_count(&w.shape) != Some(w.data.len()) {
+    if crate::io::sizes::element_count(&w.shape) != Some(w.data.len()) {
         bail!(
             "array {weight:?} does not hold the elements of its shape {:?}",
             w.shape
@@ -377,13 +377,13 @@ pub fn net_from_file(file: &GraphFile, arrays: &BTreeMap<String, NpArray>) -> Re
 /// Reads a graph description (`.json`) and its weights (`.npz` or
 /// `.safetensors`).
 pub fn read_graph(json: &Path, weights: &Path) -> Result<Net> {
-    let bytes = crate::atomic::read_input(json)
+    let bytes = crate::io::atomic::read_input(json)
         .with_context(|| format!("cannot read {}", json.display()))?;
     let text = String::from_utf8(bytes)
         .with_context(|| format!("{}: not a graph description (not UTF-8)", json.display()))?;
     let file: GraphFile = serde_json::from_str(&text)
         .with_context(|| format!("{}: not a graph description", json.display()))?;
-    let arrays = crate::cp::import::read_arrays(weights)?;
+    let arrays = crate::io::tensors::read_arrays(weights)?;
     net_from_file(&file, &arrays).with_context(|| format!("{}", json.display()))
 }
 
@@ -520,8 +520,8 @@ pub fn write_graph(net: &Net, json: &Path, weights: &Path) -> Result<()> {
         .iter()
         .map(|(n, s, d)| (n.as_str(), s.clone(), d.clone()))
         .collect();
-    crate::cp::import::write_arrays(weights, &refs)?;
+    crate::io::tensors::write_arrays(weights, &refs)?;
     let text = serde_json::to_string_pretty(&file)?;
-    crate::atomic::write_atomic(json, format!("{text}\n").as_bytes())?;
+    crate::io::atomic::write_atomic(json, format!("{text}\n").as_bytes())?;
     Ok(())
 }

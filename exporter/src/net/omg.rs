@@ -62,7 +62,7 @@ use serde::Deserialize;
 
 use super::graph::{Graph, GraphNode, GraphOp};
 use super::{ExpertLayer, GatingMode, Net, NetLayer, Wiring};
-use crate::npz::NpArray;
+use crate::io::tensors::NpArray;
 use crate::ops::{DecLayer, RbfLayer};
 use phasegate::blob::{GateSource, Slice, Source};
 
@@ -1062,7 +1062,7 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
 /// file, [`read_omg`] adds the names.
 pub fn omg_from_bytes(weights: &[u8], config: &str) -> Result<OmgNet> {
     let cfg: OmgConfig = serde_json::from_str(config).context("not an OMG config")?;
-    let arrays = crate::cp::import::parse_safetensors(weights)?;
+    let arrays = crate::io::tensors::parse_safetensors(weights)?;
     net_from_omg(&cfg, &arrays)
 }
 
@@ -1073,7 +1073,7 @@ pub fn read_omg(weights: &Path, config: &Path) -> Result<OmgNet> {
         .with_context(|| format!("cannot read {}", config.display()))?;
     let cfg: OmgConfig = serde_json::from_str(&text)
         .with_context(|| format!("{}: not an OMG config", config.display()))?;
-    let arrays = crate::cp::import::read_arrays(weights)?;
+    let arrays = crate::io::tensors::read_arrays(weights)?;
     net_from_omg(&cfg, &arrays).map_err(|e| {
         let file = if e.to_string().starts_with("tensor") {
             weights
@@ -1677,7 +1677,7 @@ pub(crate) mod tests {
                 )
             })
             .collect();
-        crate::cp::import::write_safetensors(&w, &tensors).unwrap();
+        crate::io::tensors::write_safetensors(&w, &tensors).unwrap();
         let mut json = config_json(&cfg);
         json["controller"]["skeleton"]["dofs"][1]["axis"] = serde_json::json!(7);
         std::fs::write(&c, serde_json::to_string(&json).unwrap()).unwrap();

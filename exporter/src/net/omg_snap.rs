@@ -19,7 +19,7 @@ use ndarray::Array2;
 
 use super::omg::OmgNet;
 use super::{ExpertLayer, GraphOp, NetLayer, Wiring};
-use crate::npz::NpArray;
+use crate::io::tensors::NpArray;
 use crate::quantise::Quantised;
 
 /// One weight tensor of `model.safetensors` and the graph node holding it.
@@ -205,7 +205,7 @@ pub fn to_safetensors(arrays: &BTreeMap<String, NpArray>) -> Result<Vec<u8>> {
             (n.as_str(), a.shape.clone(), data)
         })
         .collect();
-    crate::cp::import::safetensors_bytes(&list)
+    crate::io::tensors::safetensors_bytes(&list)
 }
 
 #[cfg(test)]
@@ -314,7 +314,7 @@ mod tests {
         let (omg, q) = quantised(&cfg, &arrays);
         let s = snapped(&omg, &q, &arrays).unwrap();
         let bytes = to_safetensors(&s).unwrap();
-        let back = crate::cp::import::parse_safetensors(&bytes).unwrap();
+        let back = crate::io::tensors::parse_safetensors(&bytes).unwrap();
         assert_eq!(
             back.keys().collect::<Vec<_>>(),
             s.keys().collect::<Vec<_>>()

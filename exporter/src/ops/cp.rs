@@ -21,7 +21,7 @@ use phasegate::blob::{AccWidth, LayerOp, Section};
 use phasegate::ops::cp::{gate_l1_max, MidRecord};
 
 use crate::cp::als::{cp_als, sort_components, AlsOptions, AlsResult};
-use crate::encode::{QCp, QLayer};
+use crate::lower::qmodel::{QCp, QLayer};
 use crate::ops::dense::ExpertLayer;
 use crate::ops::dense::{integer_moments, round_compensated, target_weights};
 use crate::quantise::moments::Sequential;

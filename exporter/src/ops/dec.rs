@@ -10,7 +10,7 @@ use ndarray::{Array1, Array2};
 use phasegate::blob::{LayerOp, Section};
 
 use super::rbf::{quantise_as, RbfLayer};
-use crate::encode::QLayer;
+use crate::lower::qmodel::QLayer;
 use crate::quantise::{LayerSpec, QuantError, QuantLayerReport};
 
 /// A gated DEC layer.

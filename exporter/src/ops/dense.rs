@@ -11,7 +11,7 @@ use ndarray::{Array1, Array2};
 use phasegate::blob::{AccWidth, LayerOp, WeightFormat};
 use phasegate::ops::cp::gate_l1_max;
 
-use crate::encode::QLayer;
+use crate::lower::qmodel::QLayer;
 use crate::quantise::{
     bits, layer_desc, layer_report, qmax, requant_for_blend, LayerSpec, QuantError,
     QuantLayerReport,

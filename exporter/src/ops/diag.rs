@@ -5,7 +5,7 @@ use ndarray::Array1;
 use phasegate::blob::{AccWidth, LayerOp};
 use phasegate::ops::cp::gate_l1_max;
 
-use crate::encode::QLayer;
+use crate::lower::qmodel::QLayer;
 use crate::quantise::{
     layer_desc, layer_report, qmax, requant_for, LayerSpec, QuantError, QuantLayerReport,
 };

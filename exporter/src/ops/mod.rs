@@ -21,7 +21,7 @@ pub use dense::ExpertLayer;
 pub use diag::DiagLayer;
 pub use rbf::RbfLayer;
 
-use crate::encode::QLayer;
+use crate::lower::qmodel::QLayer;
 use crate::quantise::{LayerSpec, QuantError, QuantLayerReport};
 
 /// Fewest calibration samples of a network with CP layers: their middle

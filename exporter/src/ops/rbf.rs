@@ -14,7 +14,7 @@ use phasegate::blob::{AccWidth, LayerOp, RbfScale, Section, WeightFormat};
 use phasegate::ops::cp::gate_l1_max;
 use phasegate::ops::rbf::MAX_ALIGN;
 
-use crate::encode::QLayer;
+use crate::lower::qmodel::QLayer;
 use crate::quantise::{
     layer_desc, layer_report, requant_for, LayerSpec, QuantError, QuantLayerReport,
 };
@@ -172,14 +172,7 @@ pub(crate) fn quantise_as(
     Ok((ql, rep))
 }
 
-/// The RBF op's arrays beside its centres.
-#[derive(Clone, Debug, PartialEq)]
-pub struct QRbf {
-    /// `experts x out` scale records.
-    pub scales: Vec<RbfScale>,
-    /// `in` alignment shifts.
-    pub align: Vec<u8>,
-}
+pub use crate::lower::qmodel::QRbf;
 
 #[cfg(test)]
 mod tests {

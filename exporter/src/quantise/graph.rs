@@ -25,7 +25,7 @@ use super::{
     QuantOptions, Quantised,
 };
 use crate::calibrate::{calibration_inputs, max_into, ms_into, Ranges};
-use crate::encode::{QKind, QModel, QNode, QNodeOp, Wiring as QWiring};
+use crate::lower::qmodel::{QKind, QModel, QNode, QNodeOp, Wiring as QWiring};
 use crate::net::{Graph, GraphOp, Net};
 
 /// What calibration saw at one node.

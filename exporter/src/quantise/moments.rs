@@ -12,7 +12,7 @@
 
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2, Axis};
 
-use crate::calibrate::Samples;
+use crate::io::samples::Samples;
 use phasegate::blob::GateSource;
 
 use crate::net::{elu, Graph, GraphOp, Net, NetLayer};
@@ -333,7 +333,7 @@ fn layer_batch(layer: &NetLayer, x: &Array2<f64>, g: &Array2<f64>) -> Array2<f64
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calibrate::normal_inputs;
+    use crate::io::samples::normal_inputs;
     use crate::net::{CpLayer, DiagLayer, ExpertLayer, GatingMode, Wiring};
 
     fn net() -> Net {

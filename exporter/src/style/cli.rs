@@ -58,7 +58,7 @@ pub struct StyleArgs {
 
 /// Runs `exporter style`.
 pub fn style(args: &StyleArgs) -> Result<()> {
-    let base_blob = crate::atomic::read_input(&args.base)
+    let base_blob = crate::io::atomic::read_input(&args.base)
         .with_context(|| format!("cannot read {}", args.base.display()))?;
     let base = load_dense(&args.base_weights, args.gating)?;
     let adapter = read_adapter(&args.adapter, args.layer)?;
@@ -112,7 +112,7 @@ pub struct StyleInspectArgs {
 
 /// Runs `exporter style-inspect`; fails (non-zero exit) if the blob is invalid.
 pub fn style_inspect(args: &StyleInspectArgs) -> Result<()> {
-    let bytes = crate::atomic::read_input(&args.style)
+    let bytes = crate::io::atomic::read_input(&args.style)
         .with_context(|| format!("cannot read {}", args.style.display()))?;
     print!(
         "{}",

@@ -30,8 +30,9 @@ use serde::Serialize;
 
 use crate::calibrate::{max_into, ms_into, normal_inputs, Samples};
 use crate::cp::report::{output_error, OutputError};
-use crate::encode::{encode, QKind, QModel, Wiring};
-use crate::export::format_name;
+use crate::encode::encode;
+use crate::lower::qmodel::format_name;
+use crate::lower::qmodel::{QKind, QModel, Wiring};
 use crate::net::residual::{adapter_node_name, residual_node_name};
 use crate::net::{Adapter, Graph, Net, NetLayer};
 use crate::quantise::LayerSpec;

@@ -100,7 +100,9 @@ mod tests {
 
     /// Every module that reads a size from a file the tools are handed.
     const PARSER_MODULES: &[&str] = &[
-        "exporter/src/sizes.rs",
+        "exporter/src/io/sizes.rs",
+        "exporter/src/io/tensors.rs",
+        "exporter/src/io/samples.rs",
         "exporter/src/npz.rs",
         "exporter/src/cp/import.rs",
         "exporter/src/pfnn_dir.rs",
