@@ -283,11 +283,13 @@ fn quant_options(net: &Net, q: &OutputArgs, default_headroom: f64) -> Result<Qua
     Ok(opts)
 }
 
-fn write_all(files: Vec<(PathBuf, Vec<u8>)>) -> Result<()> {
-    for (path, bytes) in files {
-        exporter::atomic::write_atomic(&path, &bytes)?;
-    }
-    Ok(())
+/// Every file or none (`exporter::io::atomic::write_together`).
+fn write_all(files: &[(PathBuf, Vec<u8>)]) -> Result<()> {
+    let refs: Vec<(&Path, &[u8])> = files
+        .iter()
+        .map(|(p, b)| (p.as_path(), b.as_slice()))
+        .collect();
+    exporter::io::atomic::write_together(&refs)
 }
 
 /// The `--snap-out` and `--grid-out` files of an OMG model quantised with
@@ -338,6 +340,7 @@ fn export(
     q: &OutputArgs,
     default_headroom: f64,
     source: &Path,
+    side_files: Vec<(PathBuf, Vec<u8>)>,
 ) -> Result<()> {
     let opts = quant_options(net, q, default_headroom)?;
     let weights = opts.weights;
@@ -375,7 +378,7 @@ fn export(
             .map_err(|e| anyhow::anyhow!("the blob written does not load back: {e}"))?;
         report.frame_budget = Some(exporter::cost::check_budget(&model, n));
     }
-    write_outputs(&blob, &report, q)?;
+    write_outputs(&blob, &report, q, side_files)?;
     if let Some(w) = report
         .frame_budget
         .as_ref()
@@ -391,20 +394,19 @@ fn export(
     Ok(())
 }
 
-/// Both files or neither: the report goes first, and is removed again if
-/// the blob cannot be written.
-fn write_outputs(blob: &[u8], report: &ExportReport, q: &OutputArgs) -> Result<()> {
+/// The blob, its report and `side_files`: all of them or none.
+fn write_outputs(
+    blob: &[u8],
+    report: &ExportReport,
+    q: &OutputArgs,
+    side_files: Vec<(PathBuf, Vec<u8>)>,
+) -> Result<()> {
+    let mut files = vec![(q.blob.output.clone(), blob.to_vec())];
     if let Some(path) = &q.blob.report {
-        let json = serde_json::to_vec_pretty(report)?;
-        exporter::atomic::write_atomic(path, &json)?;
+        files.push((path.clone(), serde_json::to_vec_pretty(report)?));
     }
-    if let Err(e) = exporter::atomic::write_atomic(&q.blob.output, blob) {
-        if let Some(path) = &q.blob.report {
-            let _ = std::fs::remove_file(path);
-        }
-        return Err(e);
-    }
-    Ok(())
+    files.extend(side_files);
+    write_all(&files)
 }
 
 fn summary(r: &ExportReport, out: &Path) {
@@ -506,16 +508,12 @@ fn omg_rig(a: &OmgRigArgs) -> Result<()> {
     };
     let (blob, rep) =
         exporter::rig::export_rig(&omg.net, &motion, mask, &name, &opts).with_context(against)?;
+    let mut files = vec![(output.clone(), blob)];
     if let Some(path) = report {
-        exporter::atomic::write_atomic(path, &serde_json::to_vec_pretty(&rep)?)?;
+        files.push((path.to_path_buf(), serde_json::to_vec_pretty(&rep)?));
     }
-    if let Err(e) = exporter::atomic::write_atomic(output, &blob) {
-        if let Some(path) = report {
-            let _ = std::fs::remove_file(path);
-        }
-        return Err(e);
-    }
-    write_all(grid_files)?;
+    files.extend(grid_files);
+    write_all(&files)?;
     println!(
         "{}: rig {:?}, {} bytes, for motion blob {} (payload CRC {:#010x}, {} bytes); \
          the pair needs {} bytes of activation RAM, {} MACs per frame",
@@ -567,11 +565,25 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Pfnn { weights, quant } => {
             let (net, residual) = load_pfnn_dir(&weights, quant.gating.into())?;
-            export(&net, residual, &quant.out, DEFAULT_HEADROOM, &weights)
+            export(
+                &net,
+                residual,
+                &quant.out,
+                DEFAULT_HEADROOM,
+                &weights,
+                Vec::new(),
+            )
         }
         Command::Npz { weights, quant } => {
             let net = exporter::npz::pfnn_from_npz(&weights, quant.gating.into())?;
-            export(&net, None, &quant.out, DEFAULT_HEADROOM, &weights)
+            export(
+                &net,
+                None,
+                &quant.out,
+                DEFAULT_HEADROOM,
+                &weights,
+                Vec::new(),
+            )
         }
         Command::Graph {
             graph,
@@ -579,7 +591,7 @@ fn run(cli: Cli) -> Result<()> {
             out,
         } => {
             let net = exporter::net::json::read_graph(&graph, &weights)?;
-            export(&net, None, &out, DEFAULT_HEADROOM, &weights)
+            export(&net, None, &out, DEFAULT_HEADROOM, &weights, Vec::new())
         }
         Command::Omg {
             weights,
@@ -600,8 +612,14 @@ fn run(cli: Cli) -> Result<()> {
             } else {
                 Vec::new()
             };
-            export(&omg.net, None, &out, exporter::net::omg::HEADROOM, &weights)?;
-            write_all(grid_files)
+            export(
+                &omg.net,
+                None,
+                &out,
+                exporter::net::omg::HEADROOM,
+                &weights,
+                grid_files,
+            )
         }
         Command::OmgRig(a) => omg_rig(&a),
         Command::Cp(a) => exporter::cp::cli::cp(&a),

@@ -1071,3 +1071,159 @@ fn omg_rig_snap_of_the_committed_r4_model_is_the_committed_model() {
     }
     assert!(rig.exists());
 }
+
+/// Runs `exporter <prefix> <flag> <path>...` with every output good (all
+/// written), then with each output in turn made unwritable: in a missing
+/// directory, an existing directory, one of `inputs`, or the same as the
+/// next output. Each must fail in one line saying why and leave no output
+/// and no temporary in the output directory, and the inputs unchanged.
+fn written_together_or_not_at_all(prefix: &[String], outputs: &[(&str, &str)], inputs: &[PathBuf]) {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    let before: Vec<Vec<u8>> = inputs.iter().map(|p| std::fs::read(p).unwrap()).collect();
+    let run = |paths: &[PathBuf]| {
+        let mut args: Vec<String> = prefix.to_vec();
+        for ((flag, _), p) in outputs.iter().zip(paths) {
+            args.push(flag.to_string());
+            args.push(p.display().to_string());
+        }
+        let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+        exporter(&refs)
+    };
+    let good: Vec<PathBuf> = outputs.iter().map(|(_, n)| out.join(n)).collect();
+    let o = run(&good);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut written = good.clone();
+    written.sort();
+    assert_eq!(files_in(&out), written);
+    for p in &good {
+        std::fs::remove_file(p).unwrap();
+    }
+    let blocker = out.join("a-directory");
+    std::fs::create_dir(&blocker).unwrap();
+    let n = outputs.len();
+    for k in 0..n {
+        let mut cases = vec![
+            (
+                "missing directory",
+                out.join("no-such-dir").join(outputs[k].1),
+                "no such directory",
+            ),
+            ("a directory", blocker.clone(), "is a directory"),
+        ];
+        for input in inputs {
+            cases.push(("an input", input.clone(), "also an input"));
+        }
+        if n > 1 {
+            cases.push(("named twice", good[(k + 1) % n].clone(), "two outputs"));
+        }
+        for (why, bad, says) in cases {
+            let mut paths = good.clone();
+            paths[k] = bad.clone();
+            let o = run(&paths);
+            let err = stderr(&o);
+            let what = format!(
+                "{} {} as {why} ({})",
+                prefix[0],
+                outputs[k].0,
+                bad.display()
+            );
+            assert!(!o.status.success(), "{what}: succeeded");
+            assert_eq!(err.trim_end().lines().count(), 1, "{what}: {err}");
+            assert!(err.contains(says), "{what}: {err}");
+            assert_eq!(files_in(&out), vec![blocker.clone()], "{what}: {err}");
+        }
+    }
+    for (p, b) in inputs.iter().zip(&before) {
+        assert_eq!(&std::fs::read(p).unwrap(), b, "{} changed", p.display());
+    }
+}
+
+/// The commands with several outputs write them together or not at all
+/// (`written_together_or_not_at_all`): `omg` with a report, snapped
+/// weights and a grid; `omg-rig` the same against a motion blob; `npz`
+/// and `style` a blob and its report.
+#[test]
+fn several_outputs_are_written_together_or_not_at_all() {
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg");
+    let tmp = tempfile::tempdir().unwrap();
+    let copy = |model: &str| {
+        let dir = tmp.path().join(model);
+        std::fs::create_dir(&dir).unwrap();
+        for f in ["model.safetensors", "config.json"] {
+            std::fs::copy(models.join(model).join(f), dir.join(f)).unwrap();
+        }
+        (dir.join("model.safetensors"), dir.join("config.json"))
+    };
+    let s = |p: &Path| p.display().to_string();
+    let (w, c) = copy("tiny_fe_r1");
+    let grid = [
+        ("--snap-out", "m.safetensors"),
+        ("--grid-out", "m.grid.json"),
+    ];
+    let prefix = vec![
+        "omg".into(),
+        "--weights".into(),
+        s(&w),
+        "--config".into(),
+        s(&c),
+    ];
+    let omg_outputs = [("-o", "m.blob"), ("--report", "m.json"), grid[0], grid[1]];
+    written_together_or_not_at_all(&prefix, &omg_outputs, &[w.clone(), c.clone()]);
+
+    let motion = tmp.path().join("motion.blob");
+    let o = exporter(&[
+        "omg",
+        "--weights",
+        &s(&w),
+        "--config",
+        &s(&c),
+        "-o",
+        &s(&motion),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (rw, rc) = copy("tiny_fe_r4_frozen");
+    let prefix = vec![
+        "omg-rig".into(),
+        "--base".into(),
+        s(&motion),
+        "--weights".into(),
+        s(&rw),
+        "--config".into(),
+        s(&rc),
+    ];
+    let rig_outputs = [("-o", "r4.rig"), ("--report", "r4.json"), grid[0], grid[1]];
+    written_together_or_not_at_all(&prefix, &rig_outputs, &[motion.clone(), rw, rc]);
+
+    let golden = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/golden/default");
+    let npz = tmp.path().join("model.npz");
+    std::fs::copy(golden.join("model.npz"), &npz).unwrap();
+    let blob_outputs = [("-o", "m.blob"), ("--report", "m.json")];
+    let prefix = vec![
+        "npz".into(),
+        "--weights".into(),
+        s(&npz),
+        "--gating".into(),
+        "cubic".into(),
+    ];
+    written_together_or_not_at_all(&prefix, &blob_outputs, std::slice::from_ref(&npz));
+
+    let base = tmp.path().join("base.blob");
+    std::fs::copy(golden.join("model.blob"), &base).unwrap();
+    let adapter = tmp.path().join("adapter.npz");
+    exporter::npz::write_npz(&adapter, &[("w", vec![4, 32], vec![0.01; 128])]).unwrap();
+    let prefix = vec![
+        "style".into(),
+        "--base".into(),
+        s(&base),
+        "--base-weights".into(),
+        s(&npz),
+        "--adapter".into(),
+        s(&adapter),
+        "--name".into(),
+        "lean".into(),
+    ];
+    let style_outputs = [("-o", "s.style"), ("--report", "s.json")];
+    written_together_or_not_at_all(&prefix, &style_outputs, &[base, npz, adapter]);
+}

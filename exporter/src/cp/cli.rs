@@ -389,23 +389,21 @@ pub fn cp(args: &CpArgs) -> Result<()> {
     Ok(())
 }
 
-/// Report first, then the blob; the report is removed if the blob fails.
+/// The blob and its report, both or neither.
 pub fn write_both<T: Serialize>(
     blob: &[u8],
     report: &T,
     output: &Path,
     json: Option<&Path>,
 ) -> Result<()> {
-    if let Some(path) = json {
-        crate::io::atomic::write_atomic(path, &serde_json::to_vec_pretty(report)?)?;
+    let text = json
+        .map(|_| serde_json::to_vec_pretty(report))
+        .transpose()?;
+    let mut files: Vec<(&Path, &[u8])> = vec![(output, blob)];
+    if let (Some(path), Some(text)) = (json, &text) {
+        files.push((path, text));
     }
-    if let Err(e) = crate::io::atomic::write_atomic(output, blob) {
-        if let Some(path) = json {
-            let _ = std::fs::remove_file(path);
-        }
-        return Err(e);
-    }
-    Ok(())
+    crate::io::atomic::write_together(&files)
 }
 
 fn print_cp_summary(r: &CpExportReport, out: &Path) {

@@ -1,6 +1,8 @@
 //! All-or-nothing file output: write a temporary file in the destination's
 //! directory, flush it, then rename it over the destination. A failure at
-//! any point leaves no partial file behind.
+//! any point leaves no partial file behind, and a command's several outputs
+//! (a blob, its report, grid and snapped weights) are written together or
+//! not at all ([`write_together`]).
 //!
 //! The command-line tools also refuse to write over one of their own
 //! inputs (`-o model.npz` for `--weights model.npz`): [`guard_inputs`]
@@ -58,12 +60,62 @@ fn is_input(path: &Path) -> bool {
 /// Writes `bytes` to `path` atomically; refuses a path that is one of the
 /// run's inputs ([`guard_inputs`]).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    if GUARD.load(Ordering::Relaxed) && is_input(path) {
-        bail!(
-            "{}: the output is also an input of this command; refusing to overwrite it",
-            path.display()
-        );
+    write_together(&[(path, bytes)])
+}
+
+/// Writes every file or none: each goes to a temporary file beside its
+/// destination first, and only when all of them are complete and flushed
+/// are they renamed into place. A destination that is an input of the run,
+/// a directory, or named twice is refused before anything is written; a
+/// failure while staging removes the temporaries and leaves every
+/// destination as it was. (The renames come last and stay within each
+/// destination's own directory, where nothing checked above can make one
+/// fail; an I/O error there names the file.)
+pub fn write_together(files: &[(&Path, &[u8])]) -> Result<()> {
+    for (i, (path, _)) in files.iter().enumerate() {
+        if GUARD.load(Ordering::Relaxed) && is_input(path) {
+            bail!(
+                "{}: the output is also an input of this command; refusing to overwrite it",
+                path.display()
+            );
+        }
+        if path.is_dir() {
+            bail!("cannot write {}: it is a directory", path.display());
+        }
+        let key = destination_key(path);
+        if files[..i].iter().any(|(p, _)| destination_key(p) == key) {
+            bail!("{}: named as two outputs of this command", path.display());
+        }
     }
+    let mut staged = Vec::with_capacity(files.len());
+    for (path, bytes) in files {
+        staged.push((*path, stage(path, bytes)?));
+    }
+    for (path, tmp) in staged {
+        tmp.persist(path)
+            .map_err(|e| e.error)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}
+
+/// The directory of `path` (canonical where it exists) joined with its
+/// file name: two spellings of one destination compare equal.
+fn destination_key(path: &Path) -> PathBuf {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let dir = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.to_path_buf());
+    match path.file_name() {
+        Some(name) => dir.join(name),
+        None => dir,
+    }
+}
+
+/// `bytes` in a flushed temporary file in `path`'s directory, removed
+/// again when dropped unless persisted.
+fn stage(path: &Path, bytes: &[u8]) -> Result<tempfile::NamedTempFile> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
@@ -99,8 +151,5 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
             .as_file()
             .set_permissions(std::fs::Permissions::from_mode(0o644));
     }
-    tmp.persist(path)
-        .map_err(|e| e.error)
-        .with_context(|| format!("cannot write {}", path.display()))?;
-    Ok(())
+    Ok(tmp)
 }

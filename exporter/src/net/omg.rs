@@ -1069,8 +1069,11 @@ pub fn omg_from_bytes(weights: &[u8], config: &str) -> Result<OmgNet> {
 /// Reads an OMG model: `config` (`config.json`) and `weights`
 /// (`model.safetensors`). Every error is one line naming the file.
 pub fn read_omg(weights: &Path, config: &Path) -> Result<OmgNet> {
-    let text = std::fs::read_to_string(config)
+    // Through `read_input`: the config is an input no output may overwrite.
+    let bytes = crate::io::atomic::read_input(config)
         .with_context(|| format!("cannot read {}", config.display()))?;
+    let text = String::from_utf8(bytes)
+        .map_err(|_| anyhow!("{}: not an OMG config: not UTF-8 text", config.display()))?;
     let cfg: OmgConfig = serde_json::from_str(&text)
         .with_context(|| format!("{}: not an OMG config", config.display()))?;
     let arrays = crate::io::tensors::read_arrays(weights)?;
