@@ -234,3 +234,67 @@ fn eval_names_the_version_found_and_the_version_supported() {
         assert!(!y.exists());
     }
 }
+
+/// Command and target scripts, and an OMG model's `config.json` and
+/// `rig.json`, are inputs: naming one as `--out` is refused in one line and
+/// leaves it as it was.
+#[test]
+fn scripts_and_model_files_are_inputs_no_output_overwrites() {
+    let tmp = tempfile::tempdir().unwrap();
+    let command = tmp.path().join("walk.json");
+    std::fs::write(
+        &command,
+        r#"{"name": "walk", "commands": [{"at": 0.0, "velocity": [0.0, 2.5], "gait": "walk"}]}"#,
+    )
+    .unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let model = tmp.path().join("tiny_fe_r1");
+    std::fs::create_dir(&model).unwrap();
+    for f in [
+        "model.safetensors",
+        "config.json",
+        "rig.json",
+        "references.npz",
+    ] {
+        std::fs::copy(root.join("models/omg/tiny_fe_r1").join(f), model.join(f)).unwrap();
+    }
+    let target = tmp.path().join("reach.json");
+    std::fs::copy(
+        root.join("tools/omg/scripts/01-front-chest-both.json"),
+        &target,
+    )
+    .unwrap();
+    let (blob, config, rig) = (
+        golden("model.blob"),
+        model.join("config.json"),
+        model.join("rig.json"),
+    );
+    let cases: Vec<(Vec<&str>, &Path)> = vec![
+        (
+            vec!["rollout", "--model", s(&blob), "--script", s(&command)],
+            &command,
+        ),
+        (
+            vec!["rollout", "--omg", s(&model), "--script", s(&target)],
+            &target,
+        ),
+        (
+            vec!["rollout", "--omg", s(&model), "--script", "reach-front"],
+            &config,
+        ),
+        (
+            vec!["rollout", "--omg", s(&model), "--script", "reach-front"],
+            &rig,
+        ),
+    ];
+    for (mut args, input) in cases {
+        let before = std::fs::read(input).unwrap();
+        args.extend(["--frames", "20", "--out", s(input)]);
+        let o = host_sim(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?}: succeeded");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.contains("also an input"), "{args:?}: {err}");
+        assert_eq!(std::fs::read(input).unwrap(), before, "{args:?}");
+    }
+}

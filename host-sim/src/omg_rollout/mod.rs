@@ -47,7 +47,8 @@ pub struct OmgRolloutArgs {
 /// The parents of the rig the model in `dir` was trained on (`rig.json`).
 pub fn rig_parents(dir: &Path) -> Result<Vec<i32>> {
     let path = dir.join("rig.json");
-    let bytes = std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
+    let bytes = exporter::atomic::read_input(&path)
+        .with_context(|| format!("cannot read {}", path.display()))?;
     parents_of(&bytes).with_context(|| format!("{}", path.display()))
 }
 

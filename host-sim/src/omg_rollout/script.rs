@@ -184,7 +184,7 @@ impl TargetScript {
             return serde_json::from_str(json).with_context(|| format!("built-in script {spec}"));
         }
         let path = Path::new(spec);
-        let bytes = std::fs::read(path).with_context(|| {
+        let bytes = exporter::atomic::read_input(path).with_context(|| {
             let names: Vec<&str> = BUILT_IN.iter().map(|b| b.0).collect();
             format!(
                 "cannot read target script {spec} (built-in scripts: {}, ref:N, clip:N)",

@@ -280,7 +280,8 @@ pub fn rollout_dataset_cmd(args: &RolloutDatasetArgs) -> Result<()> {
     }
     let mut d = collect(&net, &scripts, args.frames)?;
     let runs = if let Some(b) = &args.blob {
-        let blob = std::fs::read(b).with_context(|| format!("cannot read {}", b.display()))?;
+        let blob = exporter::atomic::read_input(b)
+            .with_context(|| format!("cannot read {}", b.display()))?;
         let fixed = collect_fixed(&blob, &scripts, args.frames, scripts.len())
             .with_context(|| b.display().to_string())?;
         d.extend(fixed);

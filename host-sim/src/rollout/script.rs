@@ -231,8 +231,11 @@ impl Script {
                 BUILTIN.join(", ")
             );
         }
-        let text = std::fs::read_to_string(path)
+        let bytes = exporter::atomic::read_input(path)
             .with_context(|| format!("cannot read {}", path.display()))?;
+        let text = String::from_utf8(bytes).map_err(|_| {
+            anyhow::anyhow!("{}: not a command script: not UTF-8 text", path.display())
+        })?;
         let mut s = Script::from_json(&text).with_context(|| path.display().to_string())?;
         if s.name == "script" {
             s.name = path
