@@ -89,3 +89,64 @@ pub fn calibration_weight(
         )),
     }
 }
+
+/// The largest value each count option of `exporter` and `host-sim`
+/// accepts, checked when the command line is parsed, before anything is
+/// read or allocated. Each bounds the memory and time that a mistyped
+/// number can ask for (the memory of a run grows with these counts times
+/// the model's width; the tables in `docs/input-files.md`, "Bounds").
+pub mod bounds {
+    /// Frames of a rollout or a run (one hour at 60 frames per second).
+    pub const FRAMES: usize = 216_000;
+    /// Samples drawn or measured: calibration, error-aware rounding,
+    /// distillation, error reports (16 times the largest default).
+    pub const SAMPLES: usize = 262_144;
+    /// Optimiser steps and sweeps: `--distill`, `--als-iters`, `--steps`.
+    pub const STEPS: usize = 100_000;
+    /// CP ranks.
+    pub const RANK: usize = 4_096;
+    /// Scripts, tours, clips, noise seeds, rounds and snapshots.
+    pub const RUNS: usize = 10_000;
+    /// Extra bytes of `--int16-budget` (a blob is at most 4 GiB).
+    pub const BYTES: usize = 1 << 32;
+
+    /// Rows of a recorded data set (scripts and tours times frames):
+    /// about 720 MB of f64 rows at the PFNN's 342 inputs.
+    pub const ROWS: usize = 262_144;
+
+    /// A value parser for a count option of at most `max`.
+    pub fn at_most<T>(max: T) -> impl Fn(&str) -> Result<T, String> + Clone + Send + Sync
+    where
+        T: std::str::FromStr + PartialOrd + std::fmt::Display + Copy + Send + Sync + 'static,
+    {
+        move |s: &str| {
+            let n: T = s
+                .parse()
+                .map_err(|_| format!("{s} is not a whole number from 0 to {max}"))?;
+            if n > max {
+                return Err(format!("{n} is more than the largest accepted, {max}"));
+            }
+            Ok(n)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::bounds::at_most;
+
+    #[test]
+    fn counts_are_accepted_up_to_their_maximum() {
+        let p = at_most(4096usize);
+        assert_eq!(p("0"), Ok(0));
+        assert_eq!(p("4096"), Ok(4096));
+        assert_eq!(
+            p("4097"),
+            Err("4097 is more than the largest accepted, 4096".into())
+        );
+        for bad in ["-1", "1e3", "", "99999999999999999999999"] {
+            assert!(p(bad).unwrap_err().contains("not a whole number"), "{bad}");
+        }
+        assert_eq!(at_most(4u64)("4"), Ok(4));
+    }
+}

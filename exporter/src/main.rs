@@ -109,7 +109,7 @@ struct OutputArgs {
     /// from the normalisation statistics; --calibration rows come on top,
     /// weighted by --calibration-weight);
     /// on `graph` and `omg`, a count above 0 turns compensated rounding on.
-    #[arg(long)]
+    #[arg(long, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::SAMPLES))]
     compensation_samples: Option<usize>,
     /// Recorded network inputs (an .npz with X (N, inputs) and phase (N,),
     /// as `host-sim rollout-dataset` writes) added to the normal samples
@@ -124,7 +124,7 @@ struct OutputArgs {
     /// Spend up to this many extra bytes on int16 weights where they remove
     /// the most output error per byte (whole layers, measured; int8 blobs
     /// only; the report's int16_budget says where it went).
-    #[arg(long, value_name = "BYTES")]
+    #[arg(long, value_name = "BYTES", value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::BYTES))]
     int16_budget: Option<usize>,
     /// Factor between the largest calibrated value of a row and its
     /// format's range (default 1.5; `exporter omg`: 3, because its

@@ -1227,3 +1227,78 @@ fn several_outputs_are_written_together_or_not_at_all() {
     let style_outputs = [("-o", "s.style"), ("--report", "s.json")];
     written_together_or_not_at_all(&prefix, &style_outputs, &[base, npz, adapter]);
 }
+
+/// Every count option has a maximum (`exporter::cli_args::bounds`),
+/// refused when the command line is parsed, before anything is read: one
+/// value above it fails at once, the first line naming the option and the
+/// largest value accepted, and nothing is written.
+#[test]
+fn count_options_refuse_values_above_their_maximum() {
+    use exporter::cli_args::bounds;
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("m.blob");
+    let o = out.to_str().unwrap();
+    let w = "tests/golden/default/model.npz";
+    let cases: &[(&[&str], &str, usize)] = &[
+        (
+            &["npz", "--weights", w, "--gating", "cubic"],
+            "--compensation-samples",
+            bounds::SAMPLES,
+        ),
+        (
+            &["npz", "--weights", w, "--gating", "cubic"],
+            "--int16-budget",
+            bounds::BYTES,
+        ),
+        (&["cp", "--weights", w], "--cp-rank", bounds::RANK),
+        (
+            &["cp", "--weights", w, "--cp-rank", "8"],
+            "--cp-max-rank",
+            bounds::RANK,
+        ),
+        (
+            &["cp", "--weights", w, "--cp-rank", "8"],
+            "--distill",
+            bounds::STEPS,
+        ),
+        (
+            &["cp", "--weights", w, "--cp-rank", "8"],
+            "--distill-samples",
+            bounds::SAMPLES,
+        ),
+        (
+            &["cp", "--weights", w, "--cp-rank", "8"],
+            "--als-iters",
+            bounds::STEPS,
+        ),
+        (
+            &["cp", "--weights", w, "--cp-rank", "8"],
+            "--samples",
+            bounds::SAMPLES,
+        ),
+        (
+            &["cp", "--weights", w, "--cp-rank", "8"],
+            "--compensation-samples",
+            bounds::SAMPLES,
+        ),
+    ];
+    for (prefix, option, max) in cases {
+        let too_many = (max + 1).to_string();
+        let mut args: Vec<&str> = prefix.to_vec();
+        args.extend([*option, too_many.as_str(), "-o", o]);
+        let r = Command::new(env!("CARGO_BIN_EXE_exporter"))
+            .current_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join(".."))
+            .args(&args)
+            .output()
+            .unwrap();
+        let err = stderr(&r);
+        let first = err.lines().next().unwrap_or("");
+        assert_eq!(r.status.code(), Some(2), "{args:?}: {err}");
+        assert!(first.contains(option), "{args:?}: {first}");
+        assert!(
+            first.contains(&format!("largest accepted, {max}")),
+            "{args:?}: {first}"
+        );
+        assert!(!out.exists());
+    }
+}

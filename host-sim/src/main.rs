@@ -69,7 +69,7 @@ enum Command {
         #[arg(long)]
         pfnn: Option<PathBuf>,
         /// Frames to run (--pfnn).
-        #[arg(long, default_value_t = 300)]
+        #[arg(long, default_value_t = 300, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::FRAMES))]
         frames: usize,
         /// Where to write the picture of the reaching run (front and side views).
         #[arg(long, default_value = "target/phasegate-demo/omg-reach.png")]
@@ -87,7 +87,7 @@ enum Command {
         #[arg(long)]
         pfnn: PathBuf,
         /// Samples per input spread.
-        #[arg(long, default_value_t = 64)]
+        #[arg(long, default_value_t = 64, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::SAMPLES))]
         samples: usize,
         /// Seed of the input sampler.
         #[arg(long, default_value_t = 7)]
@@ -130,7 +130,7 @@ enum Command {
         /// Judge on the first N clips of the rig's training split instead
         /// of the held-out ones (to choose among training runs without
         /// looking at the clips they are reported on).
-        #[arg(long, value_name = "N")]
+        #[arg(long, value_name = "N", value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::RUNS))]
         train_clips: Option<usize>,
         /// Also roll the f64 model out with every input feature moved each
         /// frame by uniform noise in [-A, A] of its standard deviation
@@ -140,7 +140,7 @@ enum Command {
         #[arg(long, value_name = "A", allow_negative_numbers = true)]
         input_noise: Vec<f64>,
         /// Seeds of each --input-noise amount.
-        #[arg(long, value_name = "N", default_value_t = 4)]
+        #[arg(long, value_name = "N", default_value_t = 4, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::RUNS as u64))]
         noise_seeds: u64,
         /// Also run every target script of DIR (`tools/omg/scripts` is the
         /// committed set; R1 joint-velocity models, from rest): the same
@@ -185,7 +185,7 @@ enum Command {
         model: PathBuf,
         /// Frames to run (default: all golden frames, or 16 generated ones;
         /// 60 controller steps with --controller).
-        #[arg(long)]
+        #[arg(long, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::FRAMES))]
         frames: Option<usize>,
         /// float32 (N, inputs) raw inputs in model units.
         #[arg(long, requires = "phases")]

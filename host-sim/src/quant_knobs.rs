@@ -20,7 +20,7 @@ pub struct Int8Knobs {
     pub rounding: Option<exporter::cli_args::RoundingArg>,
     /// Calibration inputs of compensated rounding (exporter
     /// --compensation-samples).
-    #[arg(long)]
+    #[arg(long, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::SAMPLES))]
     pub compensation_samples: Option<usize>,
     /// Recorded inputs added to the int8 blob's calibration
     /// (exporter --calibration; `host-sim rollout-dataset` writes them).
@@ -35,7 +35,7 @@ pub struct Int8Knobs {
     /// same rows as `host-sim rollout-dataset --tours N --tour-seed S`
     /// writes, so the blob is the one `exporter --calibration` makes of
     /// that file (PFNN-shaped models; docs/fixed-point.md).
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::RUNS))]
     pub calibration_tours: Option<usize>,
     /// Seed of --calibration-tours.
     #[arg(long, default_value_t = 1, requires = "calibration_tours")]
@@ -59,7 +59,7 @@ pub struct Int8Knobs {
     pub int16_layers: Vec<usize>,
     /// Extra bytes the int8 blob may spend on int16 layers
     /// (exporter --int16-budget).
-    #[arg(long, value_name = "BYTES")]
+    #[arg(long, value_name = "BYTES", value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::BYTES))]
     pub int16_budget: Option<usize>,
 }
 
@@ -72,6 +72,14 @@ pub const TOUR_FRAMES: usize = 600;
 pub fn tour_rollouts(net: &Net, n: usize, seed: u64) -> Result<Recorded> {
     if n == 0 {
         anyhow::bail!("--calibration-tours must be at least 1");
+    }
+    let rows = n.saturating_mul(TOUR_FRAMES);
+    if rows > exporter::cli_args::bounds::ROWS {
+        anyhow::bail!(
+            "--calibration-tours {n}: {n} tours of {TOUR_FRAMES} frames make {rows} rows, more \
+             than the largest data set accepted, {} rows",
+            exporter::cli_args::bounds::ROWS
+        );
     }
     let seconds = TOUR_FRAMES as f64 / crate::rollout::script::FRAME_RATE;
     let scripts: Vec<_> = (0..n)

@@ -298,3 +298,67 @@ fn scripts_and_model_files_are_inputs_no_output_overwrites() {
         assert_eq!(std::fs::read(input).unwrap(), before, "{args:?}");
     }
 }
+
+/// Every count option has a maximum (`exporter::cli_args::bounds`), refused
+/// when the command line is parsed: one above it fails at once, the first
+/// line naming the option and the largest value accepted. Data sets whose
+/// rows (scripts and tours times frames) would exceed `bounds::ROWS` are
+/// refused before any rollout runs.
+#[test]
+fn count_options_refuse_values_above_their_maximum() {
+    use exporter::cli_args::bounds;
+    let cases: &[(&str, &str, usize)] = &[
+        ("demo", "--frames", bounds::FRAMES),
+        ("accuracy", "--samples", bounds::SAMPLES),
+        ("omg-reach", "--train-clips", bounds::RUNS),
+        ("omg-reach", "--noise-seeds", bounds::RUNS),
+        ("target", "--frames", bounds::FRAMES),
+        ("rollout", "--frames", bounds::FRAMES),
+        ("rollout-compare", "--every", bounds::FRAMES),
+        ("rollout-dataset", "--clips", bounds::RUNS),
+        ("rollout-dataset", "--tours", bounds::RUNS),
+        ("rollout-dataset", "--frames", bounds::FRAMES),
+        ("fidelity", "--frames", bounds::FRAMES),
+        ("fidelity", "--calibration-tours", bounds::RUNS),
+        ("fidelity", "--compensation-samples", bounds::SAMPLES),
+        ("fidelity", "--int16-budget", bounds::BYTES),
+        ("render", "--snapshots", bounds::RUNS),
+        ("style-demo", "--rank", bounds::RANK),
+        ("style-demo", "--steps", bounds::STEPS),
+        ("style-demo", "--rounds", bounds::RUNS),
+        ("style-demo", "--frames", bounds::FRAMES),
+    ];
+    for (command, option, max) in cases {
+        let too_many = (max + 1).to_string();
+        let o = host_sim(&[command, option, &too_many]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        let first = err.lines().next().unwrap_or("");
+        assert_eq!(o.status.code(), Some(2), "{command} {option}: {err}");
+        assert!(first.contains(option), "{command} {option}: {first}");
+        assert!(
+            first.contains(&format!("largest accepted, {max}")),
+            "{command} {option}: {first}"
+        );
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("d.npz");
+    let o = host_sim(&[
+        "rollout-dataset",
+        "--pfnn",
+        s(&golden("model.npz")),
+        "--tours",
+        "1000",
+        "--frames",
+        "600",
+        "-o",
+        s(&out),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("600000 rows") && err.contains(&bounds::ROWS.to_string()),
+        "{err}"
+    );
+    assert!(!out.exists());
+}

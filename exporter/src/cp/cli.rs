@@ -54,7 +54,8 @@ pub struct CpArgs {
     #[arg(
         long,
         required_unless_present = "cp_max_error",
-        conflicts_with = "cp_max_error"
+        conflicts_with = "cp_max_error",
+        value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::RANK)
     )]
     pub cp_rank: Option<usize>,
     /// Instead of a rank: per layer, the smallest rank whose relative
@@ -62,7 +63,7 @@ pub struct CpArgs {
     #[arg(long)]
     pub cp_max_error: Option<f64>,
     /// Largest rank `--cp-max-error` may choose.
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, default_value_t = 1024, value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::RANK))]
     pub cp_max_rank: usize,
     /// Layers to decompose (comma separated); the others stay dense.
     #[arg(long, value_delimiter = ',')]
@@ -70,10 +71,10 @@ pub struct CpArgs {
     /// Fine-tune the factors for this many Adam steps to match the dense
     /// model's outputs on inputs drawn from its normalisation statistics
     /// (and from --distill-data).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::STEPS))]
     pub distill: usize,
     /// Size of the distillation training set.
-    #[arg(long, default_value_t = 4096)]
+    #[arg(long, default_value_t = 4096, value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::SAMPLES))]
     pub distill_samples: usize,
     /// Adam learning rate of distillation (cosine-decayed to a tenth).
     #[arg(long, default_value_t = 3e-4)]
@@ -93,7 +94,7 @@ pub struct CpArgs {
     #[arg(long)]
     pub eval_data: Vec<PathBuf>,
     /// Most CP-ALS sweeps per decomposition.
-    #[arg(long, default_value_t = 200)]
+    #[arg(long, default_value_t = 200, value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::STEPS))]
     pub als_iters: usize,
     /// Ridge of CP-ALS (relative): keeps components from degenerating into
     /// large cancelling pairs, which fixed point cannot represent well.
@@ -101,14 +102,14 @@ pub struct CpArgs {
     #[arg(long, default_value_t = 1e-2)]
     pub cp_ridge: f64,
     /// Samples for the output-error measurement.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::SAMPLES))]
     pub samples: usize,
     /// How int8 weights are rounded (as `exporter pfnn --rounding`; both
     /// CP factors, and dense layers kept): default compensated.
     #[arg(long, value_enum)]
     pub rounding: Option<crate::cli_args::RoundingArg>,
     /// Calibration inputs of compensated rounding (default 16384).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::SAMPLES))]
     pub compensation_samples: Option<usize>,
     /// Where to write the blob.
     #[arg(short = 'o', long = "output")]
@@ -557,19 +558,19 @@ pub struct CpReportArgs {
     #[arg(long, default_value = "cubic")]
     pub gating: GatingMode,
     /// Ranks to measure.
-    #[arg(long, value_delimiter = ',', default_value = "16,32,64,128,256,512")]
+    #[arg(long, value_delimiter = ',', default_value = "16,32,64,128,256,512", value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::RANK))]
     pub ranks: Vec<usize>,
     /// Weight widths of the blobs measured (8, 16 or both).
     #[arg(long, value_delimiter = ',', default_value = "8,16", value_parser = parse_bits)]
     pub weight_bits: Vec<WeightFormat>,
     /// Samples per measurement.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::SAMPLES))]
     pub samples: usize,
     /// Seed of the sampler.
     #[arg(long, default_value_t = 7)]
     pub seed: u64,
     /// Most CP-ALS sweeps per decomposition.
-    #[arg(long, default_value_t = 200)]
+    #[arg(long, default_value_t = 200, value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::STEPS))]
     pub als_iters: usize,
     /// Ridge of CP-ALS (relative; see `exporter cp --help`).
     #[arg(long, default_value_t = 1e-2)]

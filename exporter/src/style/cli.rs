@@ -46,7 +46,7 @@ pub struct StyleArgs {
     #[arg(long, default_value = "8", value_parser = parse_bits)]
     pub weight_bits: WeightFormat,
     /// Samples for the error report.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::SAMPLES))]
     pub samples: usize,
     /// Where to write the style blob.
     #[arg(short = 'o', long = "output")]

@@ -45,7 +45,7 @@ pub struct RenderArgs {
     #[arg(short = 'o', long = "out")]
     pub out: PathBuf,
     /// Number of snapshots.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = 10, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::RUNS))]
     pub snapshots: usize,
     /// OMG rollouts: also write an animated GIF of the rollout here (one
     /// GIF frame every 3 rollout frames).

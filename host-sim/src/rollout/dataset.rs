@@ -51,7 +51,7 @@ pub struct RolloutDatasetArgs {
     )]
     pub omg: Option<PathBuf>,
     /// Training clips of --omg's rollouts.
-    #[arg(long, requires = "omg")]
+    #[arg(long, requires = "omg", value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::RUNS))]
     pub clips: Option<usize>,
     /// The OMG data set (`python3 -m tools.omg.generate --out DIR`).
     #[arg(long, default_value = "data/omg")]
@@ -69,13 +69,13 @@ pub struct RolloutDatasetArgs {
     /// Also (or, without --scripts, only) this many random command
     /// scripts (`rollout::tour`): calibration data for `exporter
     /// --calibration` that shares no script with `host-sim fidelity`.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::RUNS))]
     pub tours: usize,
     /// Seed of the tours.
     #[arg(long, default_value_t = 1)]
     pub tour_seed: u64,
     /// Frames of each script (60 per second).
-    #[arg(long, default_value_t = 600)]
+    #[arg(long, default_value_t = 600, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::FRAMES))]
     pub frames: usize,
     /// Also record the fixed-point controller of this blob over the same
     /// scripts: the inputs the quantised loop itself visits (rows after
@@ -259,6 +259,24 @@ pub fn rollout_dataset_cmd(args: &RolloutDatasetArgs) -> Result<()> {
     } else {
         args.scripts.iter().map(String::as_str).collect()
     };
+    // The rows kept (twice with --blob), checked before any is made.
+    let runs = named.len().saturating_add(args.tours);
+    let rows = runs
+        .saturating_mul(args.frames)
+        .saturating_mul(if args.blob.is_some() { 2 } else { 1 });
+    if rows > exporter::cli_args::bounds::ROWS {
+        bail!(
+            "{runs} scripts and tours of {} frames{} make {rows} rows, more than the largest \
+             data set accepted, {} rows: fewer --tours or --frames",
+            args.frames,
+            if args.blob.is_some() {
+                ", twice with --blob,"
+            } else {
+                ""
+            },
+            exporter::cli_args::bounds::ROWS
+        );
+    }
     let mut scripts = named
         .into_iter()
         .map(Script::load)

@@ -350,7 +350,7 @@ pub struct FidelityArgs {
     #[arg(long)]
     pub pfnn: std::path::PathBuf,
     /// Frames per script.
-    #[arg(long, default_value_t = 600)]
+    #[arg(long, default_value_t = 600, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::FRAMES))]
     pub frames: usize,
     /// Scripts (built-in names, tour names `tour-SEED-INDEX` or JSON
     /// files); all built-ins if none.

@@ -88,7 +88,7 @@ pub struct RolloutArgs {
     pub script: String,
     /// Frames to run, 60 per second (default 600; with --omg the target
     /// script's length).
-    #[arg(long)]
+    #[arg(long, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::FRAMES))]
     pub frames: Option<usize>,
     /// Where to write the rollout (.npz).
     #[arg(long)]
@@ -211,7 +211,7 @@ pub struct RolloutCompareArgs {
     /// Second rollout (.npz).
     pub b: PathBuf,
     /// Print every N-th frame (1 for all).
-    #[arg(long, default_value_t = 60)]
+    #[arg(long, default_value_t = 60, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::FRAMES))]
     pub every: usize,
     /// Also write per-frame errors and the summary as JSON.
     #[arg(long)]

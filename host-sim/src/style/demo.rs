@@ -54,16 +54,16 @@ pub struct StyleDemoArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// CP rank of the adapters (the paper: 30).
-    #[arg(long, default_value_t = 30)]
+    #[arg(long, default_value_t = 30, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::RANK))]
     pub rank: usize,
     /// Adam steps of the first fit.
-    #[arg(long, default_value_t = 1500)]
+    #[arg(long, default_value_t = 1500, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::STEPS))]
     pub steps: usize,
     /// Further fits on the styled controller's own rollouts.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::RUNS))]
     pub rounds: usize,
     /// Frames of each training script.
-    #[arg(long, default_value_t = 480)]
+    #[arg(long, default_value_t = 480, value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::FRAMES))]
     pub frames: usize,
 }
 
