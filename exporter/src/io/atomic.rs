@@ -102,10 +102,7 @@ pub fn write_together(files: &[(&Path, &[u8])]) -> Result<()> {
 /// The directory of `path` (canonical where it exists) joined with its
 /// file name: two spellings of one destination compare equal.
 fn destination_key(path: &Path) -> PathBuf {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
+    let dir = parent_dir(path);
     let dir = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.to_path_buf());
     match path.file_name() {
         Some(name) => dir.join(name),
@@ -113,13 +110,18 @@ fn destination_key(path: &Path) -> PathBuf {
     }
 }
 
+/// The directory `path` is written in (`.` for a bare file name).
+fn parent_dir(path: &Path) -> &Path {
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    }
+}
+
 /// `bytes` in a flushed temporary file in `path`'s directory, removed
 /// again when dropped unless persisted.
 fn stage(path: &Path, bytes: &[u8]) -> Result<tempfile::NamedTempFile> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
+    let dir = parent_dir(path);
     let mut tmp = tempfile::Builder::new()
         .prefix(".phasegate-")
         .suffix(".tmp")
