@@ -5,6 +5,7 @@
 pub mod budget;
 pub mod calibrate;
 pub mod cli_args;
+pub mod cli_contract;
 pub mod control_points;
 pub mod cost;
 pub mod cp;

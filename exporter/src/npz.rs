@@ -25,7 +25,8 @@ use std::path::Path;
 use crate::net::{ExpertLayer, GatingMode, Net, NetLayer};
 
 pub use crate::io::tensors::{
-    check_npy_header, parse_npy, read_npz, read_npz_from, write_npz, NpArray, MAX_NPY_HEADER_DEPTH,
+    check_npy_header, npz_bytes, parse_npy, read_npz, read_npz_from, write_npz, NpArray,
+    MAX_NPY_HEADER_DEPTH,
 };
 
 fn take<'a>(arrays: &'a BTreeMap<String, NpArray>, name: &str, path: &Path) -> Result<&'a NpArray> {

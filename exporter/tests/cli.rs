@@ -1072,72 +1072,14 @@ fn omg_rig_snap_of_the_committed_r4_model_is_the_committed_model() {
     assert!(rig.exists());
 }
 
-/// Runs `exporter <prefix> <flag> <path>...` with every output good (all
-/// written), then with each output in turn made unwritable: in a missing
-/// directory, an existing directory, one of `inputs`, or the same as the
-/// next output. Each must fail in one line saying why and leave no output
-/// and no temporary in the output directory, and the inputs unchanged.
 fn written_together_or_not_at_all(prefix: &[String], outputs: &[(&str, &str)], inputs: &[PathBuf]) {
-    let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("out");
-    std::fs::create_dir(&out).unwrap();
-    let before: Vec<Vec<u8>> = inputs.iter().map(|p| std::fs::read(p).unwrap()).collect();
-    let run = |paths: &[PathBuf]| {
-        let mut args: Vec<String> = prefix.to_vec();
-        for ((flag, _), p) in outputs.iter().zip(paths) {
-            args.push(flag.to_string());
-            args.push(p.display().to_string());
-        }
-        let refs: Vec<&str> = args.iter().map(String::as_str).collect();
-        exporter(&refs)
-    };
-    let good: Vec<PathBuf> = outputs.iter().map(|(_, n)| out.join(n)).collect();
-    let o = run(&good);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let mut written = good.clone();
-    written.sort();
-    assert_eq!(files_in(&out), written);
-    for p in &good {
-        std::fs::remove_file(p).unwrap();
-    }
-    let blocker = out.join("a-directory");
-    std::fs::create_dir(&blocker).unwrap();
-    let n = outputs.len();
-    for k in 0..n {
-        let mut cases = vec![
-            (
-                "missing directory",
-                out.join("no-such-dir").join(outputs[k].1),
-                "no such directory",
-            ),
-            ("a directory", blocker.clone(), "is a directory"),
-        ];
-        for input in inputs {
-            cases.push(("an input", input.clone(), "also an input"));
-        }
-        if n > 1 {
-            cases.push(("named twice", good[(k + 1) % n].clone(), "two outputs"));
-        }
-        for (why, bad, says) in cases {
-            let mut paths = good.clone();
-            paths[k] = bad.clone();
-            let o = run(&paths);
-            let err = stderr(&o);
-            let what = format!(
-                "{} {} as {why} ({})",
-                prefix[0],
-                outputs[k].0,
-                bad.display()
-            );
-            assert!(!o.status.success(), "{what}: succeeded");
-            assert_eq!(err.trim_end().lines().count(), 1, "{what}: {err}");
-            assert!(err.contains(says), "{what}: {err}");
-            assert_eq!(files_in(&out), vec![blocker.clone()], "{what}: {err}");
-        }
-    }
-    for (p, b) in inputs.iter().zip(&before) {
-        assert_eq!(&std::fs::read(p).unwrap(), b, "{} changed", p.display());
-    }
+    exporter::cli_contract::written_together_or_not_at_all(
+        Path::new(env!("CARGO_BIN_EXE_exporter")),
+        false,
+        prefix,
+        outputs,
+        inputs,
+    );
 }
 
 /// The commands with several outputs write them together or not at all

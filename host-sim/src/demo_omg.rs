@@ -233,12 +233,23 @@ pub fn run_demo(picture: Option<&Path>, gif: Option<&Path>, skip_target: bool) -
         colour: [BLUE, ORANGE][i],
         width: [1.5, 4.0][i],
     };
+    // Both pictures or neither; their directories are made if missing.
+    let mut outputs = exporter::atomic::Outputs::new();
+    for p in [picture, gif].into_iter().flatten() {
+        if let Some(d) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+            outputs.dir(d);
+        }
+    }
     if let Some(p) = picture {
-        crate::omg_rollout::picture::draw(&[layer(0), layer(1)], title, 5, p)?;
+        let png = crate::omg_rollout::picture::png_bytes(&[layer(0), layer(1)], title, 5, p)?;
+        outputs.add(p, png);
     }
     if let Some(g) = gif {
-        crate::omg_rollout::picture::draw_gif(&[layer(0), layer(1)], title, g, GIF_EVERY)?;
+        let bytes =
+            crate::omg_rollout::picture::gif_bytes(&[layer(0), layer(1)], title, g, GIF_EVERY)?;
+        outputs.add(g, bytes);
     }
+    outputs.commit()?;
     let state_bytes = match &target {
         Measured::Qemu { state_bytes, .. } => *state_bytes,
         Measured::Not(_) => phasegate_controller::Reach::<f32, DEVICE_WIDTH>::STATE_RAM_BYTES,

@@ -27,7 +27,7 @@ use std::path::Path;
 use crate::accuracy::sample_matrix;
 use crate::default_model;
 use crate::eval::run_fixed;
-use crate::npy::{read_matrix_f32, read_matrix_i16, read_vector_f32, write_matrix, write_vector};
+use crate::npy::{matrix_bytes, read_matrix_f32, read_matrix_i16, read_vector_f32, vector_bytes};
 use crate::target::synthetic;
 
 /// Frames in each golden set.
@@ -141,7 +141,6 @@ pub fn write_case(case: &str, dir: &Path) -> Result<()> {
         exporter::cp::import::read_cp_net(&npz, net.mode)?
     };
     let (blob, _) = export(&net, None, &opts)?;
-    exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
     let (x, p) = sample_matrix(&net, FRAMES, 1.0, INPUT_SEED);
     write_frames(dir, &blob, &x, &p)
 }
@@ -150,7 +149,6 @@ fn write_omg_case(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let e = crate::demo_omg::embedded()?;
     let blob = crate::demo_omg::int8_blob(&e.omg)?;
-    exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
     let x = crate::demo_omg::reference_frames(FRAMES)?;
     write_frames(dir, &blob, &x, &vec![0f32; x.rows])
 }
@@ -159,7 +157,6 @@ fn write_dec_case(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let net = synthetic::clustering_net(0x601D_0DEC, 32, 16, true);
     let (blob, _) = export(&net, None, &QuantOptions::default())?;
-    exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
     let (x, p) = sample_matrix(&net, FRAMES, 1.0, INPUT_SEED);
     write_frames(dir, &blob, &x, &p)
 }
@@ -169,7 +166,6 @@ fn write_rbf_case(dir: &Path) -> Result<()> {
     let d = crate::omg::load_dir(&rbf_case_model())?;
     let opts = crate::omg::exporter_options(WeightFormat::I8);
     let blob = crate::omg::export(&d, WeightFormat::I8, &opts)?;
-    exporter::atomic::write_atomic(&dir.join("model.blob"), &blob)?;
     // The grounded rollout's frames (the model's own inputs, 300 of them):
     // the reference clip's one-step frames are only 60.
     let first = &d.refs.rollout;
@@ -186,14 +182,17 @@ fn write_rbf_case(dir: &Path) -> Result<()> {
     write_frames(dir, &blob, &x, &vec![0f32; x.rows])
 }
 
-/// Inputs, phases and the outputs `blob` gives on them.
+/// The blob, inputs, phases and the outputs `blob` gives on them, written
+/// together (all or none).
 fn write_frames(dir: &Path, blob: &[u8], x: &crate::npy::Matrix<f32>, p: &[f32]) -> Result<()> {
     let run = run_fixed(blob, x, p)?;
-    write_matrix(&dir.join("inputs.npy"), x)?;
-    write_vector(&dir.join("phases.npy"), p)?;
-    write_matrix(&dir.join("expected_q.npy"), &run.raw)?;
-    write_matrix(&dir.join("expected.npy"), &run.outputs)?;
-    Ok(())
+    let mut out = exporter::atomic::Outputs::new();
+    out.add(dir.join("model.blob"), blob.to_vec());
+    out.add(dir.join("inputs.npy"), matrix_bytes(x)?);
+    out.add(dir.join("phases.npy"), vector_bytes(p)?);
+    out.add(dir.join("expected_q.npy"), matrix_bytes(&run.raw)?);
+    out.add(dir.join("expected.npy"), matrix_bytes(&run.outputs)?);
+    out.commit()
 }
 
 /// Writes the case named by `dir`'s last component into `dir`, or, when

@@ -327,10 +327,12 @@ fn eval_cmd(
             .map_err(|e| anyhow!("{}: {}", model.display(), exporter::inspect::explain(&e)))?;
         let x = npy::read_matrix_f32(inputs, m.input_dim())?;
         let run = eval::run_fixed(&blob, &x, &p)?;
+        let mut outputs = exporter::atomic::Outputs::new();
+        outputs.add(out, npy::matrix_bytes(&run.outputs)?);
         if let Some(raw) = raw_out {
-            npy::write_matrix(&raw, &run.raw)?;
+            outputs.add(raw, npy::matrix_bytes(&run.raw)?);
         }
-        npy::write_matrix(out, &run.outputs)
+        outputs.commit()
     } else {
         let (Some(r), Some(g)) = (reference, gating) else {
             bail!("--reference needs --gating")

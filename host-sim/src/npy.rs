@@ -111,6 +111,13 @@ fn write_npy<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
     shape: &[u64],
     data: &[T],
 ) -> Result<()> {
+    write_atomic(path, &npy_bytes(shape, data)?)
+}
+
+fn npy_bytes<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
+    shape: &[u64],
+    data: &[T],
+) -> Result<Vec<u8>> {
     let mut bytes = Vec::new();
     {
         let mut w = npyz::WriteOptions::new()
@@ -121,7 +128,19 @@ fn write_npy<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
         w.extend(data.iter().copied())?;
         w.finish()?;
     }
-    write_atomic(path, &bytes)
+    Ok(bytes)
+}
+
+/// The `.npy` bytes of a vector ([`write_vector`] writes them).
+pub fn vector_bytes<T: npyz::Serialize + npyz::AutoSerialize + Copy>(v: &[T]) -> Result<Vec<u8>> {
+    npy_bytes(&[v.len() as u64], v)
+}
+
+/// The `.npy` bytes of a matrix ([`write_matrix`] writes them).
+pub fn matrix_bytes<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
+    m: &Matrix<T>,
+) -> Result<Vec<u8>> {
+    npy_bytes(&[m.rows as u64, m.cols as u64], &m.data)
 }
 
 /// Writes a matrix as `.npy`.

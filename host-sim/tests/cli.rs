@@ -362,3 +362,33 @@ fn count_options_refuse_values_above_their_maximum() {
     );
     assert!(!out.exists());
 }
+
+/// The commands with several outputs write them together or not at all
+/// (`exporter::cli_contract`): `eval` a blob's outputs and its raw integer
+/// outputs; `demo` its picture and its animation (whose directories it
+/// makes). `fidelity --out-dir --json` and `style-demo --out` stage their
+/// files the same way (`exporter::atomic::Outputs`) but need the real PFNN
+/// and minutes per run.
+#[test]
+fn several_outputs_are_written_together_or_not_at_all() {
+    let bin = Path::new(env!("CARGO_BIN_EXE_host-sim"));
+    let tmp = tempfile::tempdir().unwrap();
+    let inputs: Vec<PathBuf> = ["model.blob", "inputs.npy", "phases.npy"]
+        .iter()
+        .map(|f| {
+            let p = tmp.path().join(f);
+            std::fs::copy(golden(f), &p).unwrap();
+            p
+        })
+        .collect();
+    let mut prefix = vec!["eval".to_string()];
+    for (flag, p) in ["--model", "--inputs", "--phases"].iter().zip(&inputs) {
+        prefix.extend([flag.to_string(), p.display().to_string()]);
+    }
+    let outputs = [("--out", "y.npy"), ("--raw-out", "q.npy")];
+    exporter::cli_contract::written_together_or_not_at_all(bin, false, &prefix, &outputs, &inputs);
+
+    let prefix = vec!["demo".to_string(), "--no-target".to_string()];
+    let outputs = [("--picture", "reach.png"), ("--gif", "reach.gif")];
+    exporter::cli_contract::written_together_or_not_at_all(bin, true, &prefix, &outputs, &[]);
+}

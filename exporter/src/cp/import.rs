@@ -353,13 +353,18 @@ pub fn write_cp_net(net: &Net, path: &Path) -> Result<()> {
 
 /// Writes an adapter in the layout above (float32).
 pub fn write_adapter(adapter: &Adapter, path: &Path) -> Result<()> {
+    crate::io::atomic::write_atomic(path, &adapter_bytes(adapter)?)
+}
+
+/// The `.npz` bytes [`write_adapter`] writes.
+pub fn adapter_bytes(adapter: &Adapter) -> Result<Vec<u8>> {
     let mut arrays: Arrays = Vec::new();
     layer_arrays(&adapter.op, "", "bias", &mut arrays);
     let refs: Vec<(&str, Vec<u64>, Vec<f32>)> = arrays
         .iter()
         .map(|(n, s, d)| (n.as_str(), s.clone(), d.clone()))
         .collect();
-    crate::io::tensors::write_npz(path, &refs)
+    crate::io::tensors::npz_bytes(&refs)
 }
 
 #[cfg(test)]

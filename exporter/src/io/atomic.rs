@@ -99,6 +99,73 @@ pub fn write_together(files: &[(&Path, &[u8])]) -> Result<()> {
     Ok(())
 }
 
+/// The files of one command, gathered while it runs and written together
+/// at the end ([`write_together`]): a command with several outputs adds
+/// each as it is made and calls [`Outputs::commit`] once, so that nothing
+/// lands unless everything does.
+#[derive(Debug, Default)]
+pub struct Outputs {
+    files: Vec<(PathBuf, Vec<u8>)>,
+    dirs: Vec<PathBuf>,
+}
+
+impl Outputs {
+    /// No outputs yet.
+    pub fn new() -> Outputs {
+        Outputs::default()
+    }
+
+    /// `bytes` to be written to `path`.
+    pub fn add(&mut self, path: impl Into<PathBuf>, bytes: Vec<u8>) {
+        self.files.push((path.into(), bytes));
+    }
+
+    /// A directory (an output directory such as `--out-dir`) that
+    /// [`Outputs::commit`] creates, with its parents, if it does not exist,
+    /// and removes again if writing fails.
+    pub fn dir(&mut self, dir: impl Into<PathBuf>) {
+        self.dirs.push(dir.into());
+    }
+
+    /// The destinations gathered so far, in order.
+    pub fn paths(&self) -> impl Iterator<Item = &Path> {
+        self.files.iter().map(|(p, _)| p.as_path())
+    }
+
+    /// Writes every file or none; directories this call created are
+    /// removed again on failure.
+    pub fn commit(self) -> Result<()> {
+        let mut created = Vec::new();
+        let result = (|| {
+            for d in &self.dirs {
+                let mut missing = Vec::new();
+                let mut at = Some(d.as_path());
+                while let Some(p) = at.filter(|p| !p.as_os_str().is_empty() && !p.exists()) {
+                    missing.push(p.to_path_buf());
+                    at = p.parent();
+                }
+                for m in missing.into_iter().rev() {
+                    std::fs::create_dir(&m)
+                        .with_context(|| format!("cannot create {}", m.display()))?;
+                    created.push(m);
+                }
+            }
+            let refs: Vec<(&Path, &[u8])> = self
+                .files
+                .iter()
+                .map(|(p, b)| (p.as_path(), b.as_slice()))
+                .collect();
+            write_together(&refs)
+        })();
+        if result.is_err() {
+            for d in created.iter().rev() {
+                let _ = std::fs::remove_dir(d);
+            }
+        }
+        result
+    }
+}
+
 /// The directory of `path` (canonical where it exists) joined with its
 /// file name: two spellings of one destination compare equal.
 fn destination_key(path: &Path) -> PathBuf {
@@ -154,4 +221,54 @@ fn stage(path: &Path, bytes: &[u8]) -> Result<tempfile::NamedTempFile> {
             .set_permissions(std::fs::Permissions::from_mode(0o644));
     }
     Ok(tmp)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn outputs_land_together_in_directories_made_for_them() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("a/b");
+        let mut out = Outputs::new();
+        out.dir(&dir);
+        out.add(dir.join("x"), b"1".to_vec());
+        out.add(tmp.path().join("y"), b"2".to_vec());
+        assert_eq!(out.paths().count(), 2);
+        out.commit().unwrap();
+        assert_eq!(std::fs::read(dir.join("x")).unwrap(), b"1");
+        assert_eq!(std::fs::read(tmp.path().join("y")).unwrap(), b"2");
+        assert_eq!(names(tmp.path()), ["a", "y"]);
+    }
+
+    #[test]
+    fn a_failed_output_leaves_no_file_no_temporary_and_no_directory_it_made() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("new/deeper");
+        std::fs::create_dir(tmp.path().join("blocker")).unwrap();
+        let mut out = Outputs::new();
+        out.dir(&dir);
+        out.add(dir.join("x"), b"1".to_vec());
+        out.add(tmp.path().join("blocker"), b"2".to_vec());
+        let err = out.commit().unwrap_err().to_string();
+        assert!(err.contains("is a directory"), "{err}");
+        assert_eq!(names(tmp.path()), ["blocker"]);
+
+        let mut out = Outputs::new();
+        out.add(tmp.path().join("x"), b"1".to_vec());
+        out.add(tmp.path().join("blocker/../x"), b"2".to_vec());
+        let err = out.commit().unwrap_err().to_string();
+        assert!(err.contains("two outputs"), "{err}");
+        assert_eq!(names(tmp.path()), ["blocker"]);
+    }
 }

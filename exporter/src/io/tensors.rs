@@ -240,6 +240,12 @@ fn overflow() -> anyhow::Error {
 
 /// Writes float32 arrays to an `.npz` (stored, uncompressed), atomically.
 pub fn write_npz(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> Result<()> {
+    crate::io::atomic::write_atomic(path, &npz_bytes(arrays)?)
+}
+
+/// The bytes of the `.npz` [`write_npz`] writes, for a command that writes
+/// it together with other files ([`crate::io::atomic::write_together`]).
+pub fn npz_bytes(arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> Result<Vec<u8>> {
     let mut zip = zip::ZipWriter::new(Cursor::new(Vec::new()));
     let options = zip::write::FileOptions::default()
         .compression_method(zip::CompressionMethod::Stored)
@@ -256,8 +262,7 @@ pub fn write_npz(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f32>)]) -> Result<(
         w.finish()?;
         zip.write_all(&bytes)?;
     }
-    let bytes = zip.finish()?.into_inner();
-    crate::io::atomic::write_atomic(path, &bytes)
+    Ok(zip.finish()?.into_inner())
 }
 
 /// Reads every float array of a `.safetensors` file.

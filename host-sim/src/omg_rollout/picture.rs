@@ -659,6 +659,19 @@ fn line_width(w: f64) -> u32 {
 /// and each distinct hand target once with its reach radius, a legend in a
 /// column on the right.
 pub fn draw(layers: &[Layer<'_>], title: &str, snapshots: usize, path: &Path) -> Result<()> {
+    let bytes = png_bytes(layers, title, snapshots, path)?;
+    parent_dir(path)?;
+    exporter::atomic::write_atomic(path, &bytes)
+}
+
+/// The PNG [`draw`] writes to `path` (named in errors only), as bytes, for
+/// a command that writes it together with other files.
+pub fn png_bytes(
+    layers: &[Layer<'_>],
+    title: &str,
+    snapshots: usize,
+    path: &Path,
+) -> Result<Vec<u8>> {
     let Some(first) = layers.first() else {
         bail!("cannot draw {}: no rollout to draw", path.display());
     };
@@ -725,8 +738,7 @@ pub fn draw(layers: &[Layer<'_>], title: &str, snapshots: usize, path: &Path) ->
         let mut wr = enc.write_header()?;
         wr.write_image_data(&buf)?;
     }
-    parent_dir(path)?;
-    exporter::atomic::write_atomic(path, &bytes)
+    Ok(bytes)
 }
 
 /// The widest of the per-layer lines [`draw_gif`] writes under a label.
@@ -783,6 +795,13 @@ fn gif_delay_ms(every: usize, fps: f64) -> u32 {
 /// reach circle (filled in a layer's colour while that layer's hand is
 /// within it), the frame number and time.
 pub fn draw_gif(layers: &[Layer<'_>], title: &str, path: &Path, every: usize) -> Result<()> {
+    let bytes = gif_bytes(layers, title, path, every)?;
+    parent_dir(path)?;
+    exporter::atomic::write_atomic(path, &bytes)
+}
+
+/// The GIF [`draw_gif`] writes to `path` (named in errors only), as bytes.
+pub fn gif_bytes(layers: &[Layer<'_>], title: &str, path: &Path, every: usize) -> Result<Vec<u8>> {
     let Some(first) = layers.first() else {
         bail!("cannot draw {}: no rollout to draw", path.display());
     };
@@ -801,17 +820,13 @@ pub fn draw_gif(layers: &[Layer<'_>], title: &str, path: &Path, every: usize) ->
     let (w, h) = st.size;
     let fps = fps(first.record);
     let mut lay = gif_layout(layers, first)?;
-    parent_dir(path)?;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    // Removed when dropped, so an error leaves nothing behind.
+    // plotters' GIF backend writes to a path: a temporary file of the
+    // system's, removed when dropped, so an error leaves nothing behind.
     let tmp = tempfile::Builder::new()
         .prefix(".phasegate-")
         .suffix(".tmp.gif")
-        .tempfile_in(dir)
-        .with_context(|| format!("cannot write {}", path.display()))?;
+        .tempfile()
+        .with_context(|| format!("cannot draw {}: no temporary file", path.display()))?;
     {
         let root = BitMapBackend::gif(tmp.path(), (w, h), gif_delay_ms(every, fps))
             .map_err(|e| anyhow!("cannot write {}: {e}", path.display()))?
@@ -903,18 +918,7 @@ pub fn draw_gif(layers: &[Layer<'_>], title: &str, path: &Path, every: usize) ->
                 .map_err(|e| anyhow!("cannot write {}: {e}", path.display()))?;
         }
     }
-    // tempfile creates 0600; a picture is an ordinary file.
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        let _ = tmp
-            .as_file()
-            .set_permissions(std::fs::Permissions::from_mode(0o644));
-    }
-    tmp.persist(path)
-        .map_err(|e| e.error)
-        .with_context(|| format!("cannot write {}", path.display()))?;
-    Ok(())
+    std::fs::read(tmp.path()).with_context(|| format!("cannot draw {}", path.display()))
 }
 
 #[cfg(test)]

@@ -135,6 +135,12 @@ impl Canvas {
 
     /// Writes an 8-bit RGB PNG.
     pub fn save_png(&self, path: &Path) -> Result<()> {
+        exporter::atomic::write_atomic(path, &self.png_bytes()?)
+            .with_context(|| format!("writing {}", path.display()))
+    }
+
+    /// The 8-bit RGB PNG [`Canvas::save_png`] writes.
+    pub fn png_bytes(&self) -> Result<Vec<u8>> {
         let mut bytes = Vec::new();
         {
             let mut enc = png::Encoder::new(&mut bytes, self.width as u32, self.height as u32);
@@ -144,8 +150,7 @@ impl Canvas {
             let data: Vec<u8> = self.px.iter().flatten().copied().collect();
             w.write_image_data(&data)?;
         }
-        exporter::atomic::write_atomic(path, &bytes)
-            .with_context(|| format!("writing {}", path.display()))
+        Ok(bytes)
     }
 }
 

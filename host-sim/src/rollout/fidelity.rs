@@ -4,6 +4,7 @@
 //! issue 3 checked on them.
 
 use anyhow::{Context, Result};
+use exporter::atomic::Outputs;
 use exporter::export::export;
 use exporter::net::{GatingMode, Net};
 use exporter::quantise::QuantOptions;
@@ -102,8 +103,12 @@ pub fn rollouts(net: &Net, blobs: &Blobs, script: &Script, frames: usize) -> Res
         .map_err(|_| anyhow::anyhow!("four rollouts expected"))
 }
 
+/// One script's rollout files: destination and bytes.
+type Staged = Vec<(std::path::PathBuf, Vec<u8>)>;
+
 /// Runs every script in `scripts` (the built-ins if empty), two at a time;
-/// writes each rollout to `out_dir/<script>-<controller>.npz` if given.
+/// writes each rollout to `out_dir/<script>-<controller>.npz` if given
+/// (all of them or none).
 pub fn measure(
     net: &Net,
     blobs: &Blobs,
@@ -111,6 +116,20 @@ pub fn measure(
     frames: usize,
     out_dir: Option<&Path>,
 ) -> Result<Fidelity> {
+    let (f, records) = measure_staged(net, blobs, scripts, frames, out_dir)?;
+    records.commit()?;
+    Ok(f)
+}
+
+/// [`measure`], with the rollouts for `out_dir` gathered instead of
+/// written, so that a command writes them together with its other files.
+pub fn measure_staged(
+    net: &Net,
+    blobs: &Blobs,
+    scripts: &[String],
+    frames: usize,
+    out_dir: Option<&Path>,
+) -> Result<(Fidelity, Outputs)> {
     let names: Vec<String> = if scripts.is_empty() {
         BUILTIN.iter().map(|s| s.to_string()).collect()
     } else {
@@ -120,14 +139,12 @@ pub fn measure(
         .iter()
         .map(|n| Script::load(n))
         .collect::<Result<Vec<_>>>()?;
-    if let Some(d) = out_dir {
-        std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
-    }
-    let one = |script: &Script| -> Result<ScriptResult> {
+    let one = |script: &Script| -> Result<(ScriptResult, Staged)> {
         let rs = rollouts(net, blobs, script, frames)?;
+        let mut staged = Staged::new();
         if let Some(d) = out_dir {
             for (r, tag) in rs.iter().zip(["f64", "f32", "int16", "int8"]) {
-                r.write(&d.join(format!("{}-{tag}.npz", script.name)))?;
+                staged.push((d.join(format!("{}-{tag}.npz", script.name)), r.to_npz()?));
             }
         }
         let [reference, rest @ ..] = &rs;
@@ -142,15 +159,19 @@ pub fn measure(
                 })
             })
             .collect::<Result<Vec<_>>>()?;
-        Ok(ScriptResult {
-            script: script.name.clone(),
-            reference: sanity(reference),
-            variants,
-        })
+        Ok((
+            ScriptResult {
+                script: script.name.clone(),
+                reference: sanity(reference),
+                variants,
+            },
+            staged,
+        ))
     };
     let bar = exporter::progress::bar(loaded.len() as u64, "rollouts", "scripts");
     // Two workers (the CI machine has two cores); results in script order.
-    let mut results: Vec<Option<Result<ScriptResult>>> = (0..loaded.len()).map(|_| None).collect();
+    let mut results: Vec<Option<Result<(ScriptResult, Staged)>>> =
+        (0..loaded.len()).map(|_| None).collect();
     std::thread::scope(|s| {
         let chunks: Vec<_> = results
             .chunks_mut(loaded.len().div_ceil(2).max(1))
@@ -169,15 +190,27 @@ pub fn measure(
         }
     });
     bar.finish_and_clear();
-    let scripts = results
+    let (scripts, staged): (Vec<_>, Vec<_>) = results
         .into_iter()
         .map(|r| r.unwrap_or_else(|| Err(anyhow::anyhow!("worker did not finish"))))
-        .collect::<Result<Vec<_>>>()?;
-    Ok(Fidelity {
-        frames,
-        blob_bytes: [blobs.int16.len(), blobs.int8.len()],
-        scripts,
-    })
+        .collect::<Result<Vec<_>>>()?
+        .into_iter()
+        .unzip();
+    let mut outputs = Outputs::new();
+    if let Some(d) = out_dir {
+        outputs.dir(d);
+    }
+    for (path, bytes) in staged.into_iter().flatten() {
+        outputs.add(path, bytes);
+    }
+    Ok((
+        Fidelity {
+            frames,
+            blob_bytes: [blobs.int16.len(), blobs.int8.len()],
+            scripts,
+        },
+        outputs,
+    ))
 }
 
 /// Joint p99 bar for the int16 blob: `max(2 units, 3 x f32's figure)`.
@@ -370,7 +403,7 @@ pub struct FidelityArgs {
 pub fn fidelity_cmd(args: &FidelityArgs) -> Result<()> {
     let net = load_cubic(&args.pfnn)?;
     let blobs = export_blobs(&net, &args.int8)?;
-    let f = measure(
+    let (f, mut staged) = measure_staged(
         &net,
         &blobs,
         &args.scripts,
@@ -379,8 +412,9 @@ pub fn fidelity_cmd(args: &FidelityArgs) -> Result<()> {
     )?;
     print!("{}", f.table());
     if let Some(p) = &args.json {
-        exporter::atomic::write_atomic(p, &serde_json::to_vec_pretty(&f)?)?;
+        staged.add(p, serde_json::to_vec_pretty(&f)?);
     }
+    staged.commit()?;
     // Issue 13's int8 bars are reported, not enforced: the default int8
     // blob misses them, and calibrated on random tours they hold for some
     // tour seeds and not others (docs/fixed-point.md, "Rounding for the

@@ -18,7 +18,7 @@
 //! All float32. Frame `i` is the pose produced by the `i`-th step.
 
 use anyhow::{anyhow, bail, Result};
-use exporter::npz::{read_npz, write_npz, NpArray};
+use exporter::npz::{npz_bytes, read_npz, write_npz, NpArray};
 use phasegate_controller::layout::{JOINTS, PARENTS};
 use phasegate_controller::{Command, GaitWeights, Pose};
 use std::collections::BTreeMap;
@@ -106,6 +106,11 @@ impl Rollout {
     /// Writes the `.npz` (atomically).
     pub fn write(&self, path: &Path) -> Result<()> {
         write_npz(path, &self.arrays())
+    }
+
+    /// The bytes [`Rollout::write`] writes.
+    pub fn to_npz(&self) -> Result<Vec<u8>> {
+        npz_bytes(&self.arrays())
     }
 
     /// Reads a rollout `.npz`.

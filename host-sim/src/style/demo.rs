@@ -20,9 +20,9 @@
 //! held-out script in fixed point (`Runtime`) and float, alone,
 //! blended, and switched between frames.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use exporter::cp::distill::{inputs_and_gates, train, Dataset, TrainOptions};
-use exporter::cp::import::write_adapter;
+use exporter::cp::import::adapter_bytes;
 use exporter::export::export;
 use exporter::net::GatingMode;
 use exporter::net::{Adapter, CpLayer, Net, NetLayer};
@@ -376,14 +376,15 @@ fn max_phase_step(run: &Run) -> f64 {
 
 /// Runs the demonstration.
 pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    // Every file or none, in `--out` (made if missing).
+    let mut outputs = exporter::atomic::Outputs::new();
+    outputs.dir(&args.out);
     let pfnn = crate::style::load_float(&args.pfnn)?;
     let net = pfnn.clone();
     let hidden = net.layers[1].out_dim();
     eprintln!("exporting the int8 base blob");
     let (base_blob, _) = export(&pfnn, None, &QuantOptions::default())?;
-    exporter::atomic::write_atomic(&args.out.join("base.blob"), &base_blob)?;
+    outputs.add(args.out.join("base.blob"), base_blob.clone());
 
     eprintln!("base rollouts for training");
     let scripts = training_scripts(args.frames);
@@ -437,7 +438,10 @@ pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
             }
         }
         let adapter = ad.remove(0);
-        write_adapter(&adapter, &args.out.join(format!("{}.npz", target.name())))?;
+        outputs.add(
+            args.out.join(format!("{}.npz", target.name())),
+            adapter_bytes(&adapter)?,
+        );
         let (blob, report) = build_style(
             &base_blob,
             &net,
@@ -446,7 +450,10 @@ pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
             &QuantOptions::default(),
             256,
         )?;
-        exporter::atomic::write_atomic(&args.out.join(format!("{}.style", target.name())), &blob)?;
+        outputs.add(
+            args.out.join(format!("{}.style", target.name())),
+            blob.clone(),
+        );
         blobs.push(blob);
         adapters.push(adapter);
         styles.push((target, losses, report));
@@ -514,9 +521,12 @@ pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
         "PFNN with rank-{} CP style adapters (int8 Runtime), held-out script, side views in root space",
         args.rank
     );
-    super::png_side_views(&rows, &frames, &title, &args.out.join("styles.png"))?;
+    outputs.add(
+        args.out.join("styles.png"),
+        super::side_views_canvas(&rows, &frames, &title).png_bytes()?,
+    );
     let svg = svg_side_views(&rows, &frames, &title);
-    exporter::atomic::write_atomic(&args.out.join("styles.svg"), svg.as_bytes())?;
+    outputs.add(args.out.join("styles.svg"), svg.into_bytes());
     let report = DemoReport {
         rank: args.rank,
         base_blob_bytes: base_blob.len(),
@@ -528,10 +538,11 @@ pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
         switched: metrics(&switched.poses, skip),
         phase_step_max: (max_phase_step(&switched), max_phase_step(&base_fixed)),
     };
-    exporter::atomic::write_atomic(
-        &args.out.join("report.json"),
-        &serde_json::to_vec_pretty(&report)?,
-    )?;
+    outputs.add(
+        args.out.join("report.json"),
+        serde_json::to_vec_pretty(&report)?,
+    );
+    outputs.commit()?;
     Ok(report)
 }
 

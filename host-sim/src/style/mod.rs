@@ -281,6 +281,15 @@ pub fn png_side_views(
     title: &str,
     path: &std::path::Path,
 ) -> Result<()> {
+    side_views_canvas(runs, frames, title).save_png(path)
+}
+
+/// The picture [`png_side_views`] writes.
+pub fn side_views_canvas(
+    runs: &[(&str, &[Pose<f64>], &str)],
+    frames: &[usize],
+    title: &str,
+) -> crate::render::canvas::Canvas {
     use crate::render::canvas::{Canvas, BLACK, WHITE};
     let (cell_w, cell_h, top) = (150.0, 230.0, 34.0);
     let mut c = Canvas::new(
@@ -325,7 +334,7 @@ pub fn png_side_views(
             }
         }
     }
-    c.save_png(path)
+    c
 }
 
 #[cfg(test)]
