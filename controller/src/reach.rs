@@ -37,6 +37,12 @@ pub const MAX_KEY: usize = 8;
 /// anything further is a caller's bug, not a reach.
 pub const MAX_TARGET_M: f64 = 100.0;
 
+/// How far the squared length of an axis in a whole target block
+/// ([`Reach::set_target_block`]) may be from 1: the data's axes are unit to
+/// f32 rounding, and an axis of another length would be fed to the network
+/// as it is.
+pub const UNIT_AXIS_TOLERANCE: f64 = 1e-3;
+
 /// Where the blocks of an OMG frame are (`X` and `Y` share one layout), and
 /// where the network's output blocks go. Built once from the model's
 /// `config.json` (the host does it; on the device it is a constant the
@@ -199,7 +205,7 @@ struct DofState<R> {
 /// finite). Scaled by its largest component first, so that neither huge
 /// components (whose squares overflow) nor tiny ones (whose squares
 /// vanish) lose the direction.
-fn unit<R: Real>(v: [R; 3]) -> Option<[R; 3]> {
+pub fn unit<R: Real>(v: [R; 3]) -> Option<[R; 3]> {
     let m = v
         .iter()
         .fold(R::ZERO, |m, x| if x.abs() > m { x.abs() } else { m });
@@ -529,9 +535,15 @@ impl<R: Real, const W: usize> Reach<R, W> {
         Ok(())
     }
 
-    /// Sets the whole target block (9K values, the data's layout) at once,
-    /// e.g. from a recorded clip; refused with no state change when a
-    /// value is not finite ([`Error::BadTarget`] with the value's index).
+    /// Sets the whole target block (9K values, the data's layout: K
+    /// positions, then K forward + up pairs) at once, e.g. from a recorded
+    /// clip, under [`Reach::set_target`]'s rule: refused with no state
+    /// change ([`Error::BadTarget`] with the value's index) when a value is
+    /// not finite, a position coordinate is beyond [`MAX_TARGET_M`], or an
+    /// axis is not of unit length (within [`UNIT_AXIS_TOLERANCE`] on its
+    /// square; for the first of its values). Unlike `set_target` it does
+    /// not normalise: the block goes in as given, so a clip's targets reach
+    /// the network bit for bit.
     pub fn set_target_block(&mut self, block: &[R]) -> Result<()> {
         let range = self.layout.target.clone();
         if block.len() != range.len() {
@@ -540,10 +552,29 @@ impl<R: Real, const W: usize> Reach<R, W> {
                 found: block.len() as u32,
             }));
         }
+        let bad = |i: usize| Error::BadTarget {
+            field: u8::try_from(i).unwrap_or(u8::MAX),
+        };
         if let Some(i) = block.iter().position(|v| !v.is_finite()) {
-            return Err(Error::BadTarget {
-                field: u8::try_from(i).unwrap_or(u8::MAX),
-            });
+            return Err(bad(i));
+        }
+        let positions = 3 * self.layout.key();
+        let (pos, axes) = block.split_at(positions.min(block.len()));
+        let far = R::lit(MAX_TARGET_M);
+        if let Some(i) = pos.iter().position(|v| v.abs() > far) {
+            return Err(bad(i));
+        }
+        let tol = R::lit(UNIT_AXIS_TOLERANCE);
+        for (a, axis) in axes.chunks_exact(3).enumerate() {
+            // Finite and checked below 2 first, so the squares cannot
+            // overflow.
+            let unit_length = axis.iter().all(|v| v.abs() <= R::lit(2.0)) && {
+                let n2 = axis.iter().fold(R::ZERO, |s, &v| s + v * v);
+                (n2 - R::ONE).abs() <= tol
+            };
+            if !unit_length {
+                return Err(bad(positions + 3 * a));
+            }
         }
         self.targets
             .get_mut(range)
@@ -881,6 +912,20 @@ mod tests {
             r.set_target_block(&[f64::NAN; 9]),
             Err(Error::BadTarget { field: 0 })
         );
+        // The block path keeps set_target's rule: positions within reach,
+        // axes of unit length (not normalised: refused).
+        let block = |p: [f64; 3], f: [f64; 3], u: [f64; 3]| [p, f, u].concat();
+        let (p, f, u) = ([0.3, 1.2, 0.2], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]);
+        for (b, field) in [
+            (block([0.0, 0.0, 1e9], f, u), 2),
+            (block(p, [0.0; 3], u), 3),
+            (block(p, [0.0, 0.0, 2.0], u), 3),
+            (block(p, f, [1e30, 1e30, 0.0]), 6),
+            (block(p, f, [0.0, 0.7, 0.7]), 6),
+        ] {
+            assert_eq!(r.set_target_block(&b), Err(Error::BadTarget { field }));
+        }
+        assert_eq!(r.frame(), &before[..]);
         net.fail = true;
         assert!(r.step(&mut net).is_err());
         assert_eq!(r.frame(), &before[..]);

@@ -565,7 +565,24 @@ pub fn exercise_reach(mut data: &[u8]) -> usize {
                     *x = hostile_f32(&mut data);
                 }
                 let finite = block.iter().all(|x| x.is_finite());
-                assert_eq!(r.set_target_block(&block).is_ok(), finite);
+                let keys = layout.key();
+                let in_range = block[..3 * keys]
+                    .iter()
+                    .all(|x| f64::from(x.abs()) <= MAX_TARGET_M);
+                // In f32, as Reach<f32> computes it (so the edge agrees).
+                let tol = phasegate_controller::reach::UNIT_AXIS_TOLERANCE as f32;
+                let unit = block[3 * keys..].chunks_exact(3).all(|a| {
+                    a.iter().all(|x| x.abs() <= 2.0)
+                        && (a.iter().fold(0f32, |s, &x| s + x * x) - 1.0).abs() <= tol
+                });
+                let targets = r.targets().to_vec();
+                match r.set_target_block(&block) {
+                    Ok(()) => assert!(finite && in_range && unit, "accepted {block:?}"),
+                    Err(_) => {
+                        assert_eq!(r.targets(), &targets[..], "a refused block was kept");
+                        assert!(!(finite && in_range && unit), "refused {block:?}");
+                    }
+                }
                 assert_eq!(r.frame(), &before[..]);
             }
             _ => {

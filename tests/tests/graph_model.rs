@@ -199,6 +199,13 @@ fn broken_descriptions_name_the_node_and_the_problem() {
         ),
         (Box::new(|f| f.version = 2), "version 1 description"),
         (
+            Box::new(|f| {
+                f.nodes[8].gate = Some("phase".into());
+                f.phase_gating = None;
+            }),
+            "node 8 (\"moe1\"): gated by the phase, but the description has no phase_gating",
+        ),
+        (
             Box::new(|f| f.nodes[1].inputs = vec!["gate1[0..15]".into()]),
             "has 16 inputs, but the node's input slices give 15",
         ),

@@ -46,6 +46,12 @@ pub fn bytes_of(shape: &[u64], width: usize) -> Result<usize> {
     })
 }
 
+/// `a + b`, or an error naming `what`.
+pub fn add(a: usize, b: usize, what: &str) -> Result<usize> {
+    a.checked_add(b)
+        .ok_or_else(|| anyhow!("{what}: {a} + {b} overflows"))
+}
+
 /// `a * b`, or an error naming `what`.
 pub fn mul(a: usize, b: usize, what: &str) -> Result<usize> {
     a.checked_mul(b)
@@ -107,6 +113,7 @@ mod tests {
         "exporter/src/cp/import.rs",
         "exporter/src/pfnn_dir.rs",
         "exporter/src/net/json.rs",
+        "exporter/src/net/omg.rs",
         "host-sim/src/npy.rs",
         "host-sim/src/compare.rs",
         "format/src/blob/framing.rs",

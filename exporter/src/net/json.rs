@@ -263,6 +263,13 @@ pub fn net_from_file(file: &GraphFile, arrays: &BTreeMap<String, NpArray>) -> Re
         // its width; the phase's is whatever the weights have).
         let (gate, gate_experts) = match n.gate.as_deref() {
             None => (GateSource::None, Some(1)),
+            // Absent, the mode would default to constant: a network other
+            // than the one trained.
+            Some("phase") if file.phase_gating.is_none() => bail!(
+                "{}: gated by the phase, but the description has no phase_gating \
+                 (\"constant\", \"linear\" or \"cubic\")",
+                ctx()
+            ),
             Some("phase") => (GateSource::Phase, None),
             Some(g) => match names.get(g) {
                 Some(&(j, k))

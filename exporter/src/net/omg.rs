@@ -52,6 +52,8 @@
 //! Student-t soft assignment of the graph's DEC op (no trained DEC model
 //! ships; `tools/omg` does not train one).
 
+#![deny(clippy::arithmetic_side_effects)]
+
 use std::collections::BTreeMap;
 use std::ops::Range;
 use std::path::Path;
@@ -62,6 +64,7 @@ use serde::Deserialize;
 
 use super::graph::{Graph, GraphNode, GraphOp};
 use super::{ExpertLayer, GatingMode, Net, NetLayer, Wiring};
+use crate::io::sizes::{add, mul};
 use crate::io::tensors::NpArray;
 use crate::ops::{DecLayer, RbfLayer};
 use phasegate::blob::{GateSource, Slice, Source};
@@ -349,7 +352,102 @@ fn skeleton(c: &OmgControllerJson, joints: usize, dofs: usize) -> Result<OmgSkel
     })
 }
 
+/// Largest size a config may give (`J`, `K`, `model_width`, every
+/// `sizes` field): a blob's widths are u16, so nothing wider exports, and
+/// with every size below it no sum or product the importer forms can
+/// overflow (they are checked all the same).
+pub const MAX_CONFIG_SIZE: usize = u16::MAX as usize;
+
+/// Blocks of X that hold others, and the blocks inside each.
+const NESTED_BLOCKS: [(&str, &[&str]); 3] = [
+    ("pose", &["pos", "rot", "vel"]),
+    ("cost", &["pos_cost", "rot_cost"]),
+    ("target", &["target_pos", "target_rot"]),
+];
+
+/// The first pair of `blocks` (name, range) that share a column.
+fn first_overlap<'a>(
+    blocks: &[(&'a str, Range<usize>)],
+) -> Option<(&'a str, Range<usize>, &'a str, Range<usize>)> {
+    blocks.iter().enumerate().find_map(|(i, (a, ra))| {
+        blocks[..i].iter().find_map(|(b, rb)| {
+            (ra.start < rb.end && rb.start < ra.end).then(|| (*b, rb.clone(), *a, ra.clone()))
+        })
+    })
+}
+
 impl OmgConfig {
+    /// Refuses a size above [`MAX_CONFIG_SIZE`], naming the field.
+    fn check_sizes(&self) -> Result<()> {
+        let s = &self.sizes;
+        for (field, v) in [
+            ("J", self.joints),
+            ("K", self.key),
+            ("model_width", self.model_width),
+            ("sizes.ae_hidden", s.ae_hidden),
+            ("sizes.latent", s.latent),
+            ("sizes.cost_hidden", s.cost_hidden),
+            ("sizes.expert_hidden", s.expert_hidden),
+            ("sizes.gate_hidden", s.gate_hidden),
+            ("sizes.experts", s.experts),
+            ("sizes.clusters", s.clusters),
+            ("sizes.dof", s.dof),
+        ] {
+            if v > MAX_CONFIG_SIZE {
+                bail!("{field} = {v}: at most {MAX_CONFIG_SIZE} (a blob's widths are 16-bit)");
+            }
+        }
+        Ok(())
+    }
+
+    /// Refuses blocks of X that overlap (phase, pose, cost, target), a
+    /// sub-block outside its block or overlapping a sibling, the last
+    /// expert layer's `dphase`, `z` and `cost` overlapping, and
+    /// `encoder_columns` naming a column twice: each would build a network
+    /// other than the one trained, without a word.
+    fn check_layout(&self) -> Result<()> {
+        let top = ["phase", "pose", "cost", "target"]
+            .into_iter()
+            .map(|n| Ok((n, self.block(n)?)))
+            .collect::<Result<Vec<_>>>()?;
+        if let Some((a, ra, b, rb)) = first_overlap(&top) {
+            bail!("slices.{a} {ra:?} and slices.{b} {rb:?} overlap: X's blocks must be disjoint");
+        }
+        for (outer, inner) in NESTED_BLOCKS {
+            let o = self.block(outer)?;
+            let subs = inner
+                .iter()
+                .map(|&n| Ok((n, self.block(n)?)))
+                .collect::<Result<Vec<_>>>()?;
+            if let Some((n, r)) = subs
+                .iter()
+                .find(|(_, r)| r.start < o.start || r.end > o.end)
+            {
+                bail!("slices.{n} {r:?} is not inside slices.{outer} {o:?}");
+            }
+            if let Some((a, ra, b, rb)) = first_overlap(&subs) {
+                bail!("slices.{a} {ra:?} and slices.{b} {rb:?} overlap");
+            }
+        }
+        let outs = ["dphase", "z", "cost"]
+            .into_iter()
+            .map(|n| Ok((n, self.out_block(n)?)))
+            .collect::<Result<Vec<_>>>()?;
+        if let Some((a, ra, b, rb)) = first_overlap(&outs) {
+            bail!(
+                "out_slices.{a} {ra:?} and out_slices.{b} {rb:?} overlap: the last expert \
+                 layer's blocks must be disjoint"
+            );
+        }
+        if let Some(cols) = &self.encoder_columns {
+            let mut seen = std::collections::BTreeSet::new();
+            if let Some((i, c)) = cols.iter().enumerate().find(|(_, c)| !seen.insert(**c)) {
+                bail!("encoder_columns[{i}] = {c}: the column is named twice");
+            }
+        }
+        Ok(())
+    }
+
     /// Block `name` of X / Y.
     ///
     /// # Panics
@@ -516,13 +614,14 @@ fn experts(
     check_shape(w, &wn, &[k, inp, out], &why)?;
     let b = get(arrays, &bn)?;
     check_shape(b, &bn, &[k, out], &why)?;
+    // Shapes checked: (k, in, out) and (k, out) hold exactly the data.
+    let w = ndarray::Array3::from_shape_vec((k, inp, out), w.data.clone())?;
+    let b = Array2::from_shape_vec((k, out), b.data.clone())?;
     Ok(ExpertLayer {
-        w: (0..k)
-            .map(|e| Array2::from_shape_fn((out, inp), |(o, i)| w.data[(e * inp + i) * out + o]))
+        w: w.outer_iter()
+            .map(|e| e.t().as_standard_layout().into_owned())
             .collect(),
-        b: (0..k)
-            .map(|e| Array1::from(b.data[e * out..(e + 1) * out].to_vec()))
-            .collect(),
+        b: b.outer_iter().map(|e| e.to_owned()).collect(),
     })
 }
 
@@ -568,6 +667,23 @@ fn node_slice(node: usize, r: &Range<usize>) -> Result<Slice> {
         start: u16::try_from(r.start)?,
         len: u16::try_from(r.len())?,
     })
+}
+
+/// `parts` laid end to end: the range of each, checked.
+fn spans<const N: usize>(parts: &[usize; N], what: &str) -> Result<[Range<usize>; N]> {
+    let mut at = 0usize;
+    let mut out: [Range<usize>; N] = std::array::from_fn(|_| 0..0);
+    for (r, &len) in out.iter_mut().zip(parts) {
+        let end = add(at, len, what)?;
+        *r = at..end;
+        at = end;
+    }
+    Ok(out)
+}
+
+/// The sum of `parts`, checked.
+fn sum(parts: &[usize], what: &str) -> Result<usize> {
+    parts.iter().try_fold(0usize, |acc, &p| add(acc, p, what))
 }
 
 /// The normalisation statistics: `norm.mean` / `norm.std` of the weights
@@ -677,6 +793,7 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
         v @ ("RBF-CAT" | "DEC-CAT") => bail!("variant {v} needs sizes.clusters > 0"),
         v => bail!("variant {v:?} (expected FE, FS, RBF-CAT or DEC-CAT)"),
     };
+    cfg.check_sizes()?;
     let (j, k) = (cfg.joints, cfg.key);
     let s = &cfg.sizes;
     let phase = cfg.block("phase")?;
@@ -684,9 +801,9 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     let cost = cfg.block("cost")?;
     let target = cfg.block("target")?;
     for (name, r, want) in [
-        ("phase", &phase, 2 * k),
-        ("pose", &pose, 12 * j),
-        ("cost", &cost, 6 * k),
+        ("phase", &phase, mul(2, k, "2 K")?),
+        ("pose", &pose, mul(12, j, "12 J")?),
+        ("cost", &cost, mul(6, k, "6 K")?),
     ] {
         if r.len() != want {
             bail!(
@@ -706,6 +823,7 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     ] {
         cfg.block(sub)?;
     }
+    cfg.check_layout()?;
     if cfg.key_joint_indices.len() != k || cfg.key_joint_indices.iter().any(|&i| i >= j) {
         bail!(
             "key_joint_indices {:?}: expected {k} joint indices below J = {j}",
@@ -747,12 +865,13 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
             let sk = skeleton(c, j, d)?;
             // The network output's u block, when the config names it.
             if let Some(&[a, b]) = cfg.out_slices.get("u") {
-                let (np, want) = (phase.len(), phase.len()..phase.len() + d);
+                let np = phase.len();
+                let want = np..add(np, d, "out_slices.u")?;
                 if (a..b) != want {
                     bail!(
                         "out_slices.u = [{a}, {b}], but the network output is [phase', u, cost'] \
                          with u at [{np}, {}]",
-                        np + d
+                        want.end
                     );
                 }
             }
@@ -775,7 +894,7 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
             if hi >= cfg.model_width {
                 bail!("encoder_columns: column {hi} is outside the model width");
             }
-            (lo..hi + 1, Some(cols.clone()))
+            (lo..add(hi, 1, "encoder_columns")?, Some(cols.clone()))
         }
     };
     let enc_cols = enc_w0.as_ref().map_or(enc_in.len(), Vec::len);
@@ -792,23 +911,43 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
         let w = &enc[0].w[0];
         let mut full = Array2::zeros((w.nrows(), enc_in.len()));
         for (c, &col) in cols.iter().enumerate() {
-            full.column_mut(col - enc_in.start).assign(&w.column(c));
+            // lo <= col <= hi: inside the span.
+            full.column_mut(col.saturating_sub(enc_in.start))
+                .assign(&w.column(c));
         }
         enc[0].w[0] = full;
     }
     let costs = mlp(
         arrays,
         "cost",
-        cost.len() + target.len(),
+        add(cost.len(), target.len(), "the cost encoder's input")?,
         s.cost_hidden,
         s.cost_hidden,
         "cost encoder",
     )?;
     let h = s.expert_hidden;
     let moe = [
-        experts(arrays, 0, s.experts, cat + s.latent + s.cost_hidden, h)?,
-        experts(arrays, 1, s.experts, cat + h, h)?,
-        experts(arrays, 2, s.experts, cat + h, moe_out)?,
+        experts(
+            arrays,
+            0,
+            s.experts,
+            sum(&[cat, s.latent, s.cost_hidden], "expert layer 0's input")?,
+            h,
+        )?,
+        experts(
+            arrays,
+            1,
+            s.experts,
+            add(cat, h, "expert layer 1's input")?,
+            h,
+        )?,
+        experts(
+            arrays,
+            2,
+            s.experts,
+            add(cat, h, "expert layer 2's input")?,
+            moe_out,
+        )?,
     ];
     // The clustering layer, `(node name, layer)`.
     let clustering = match (cat, cfg.variant.as_str()) {
@@ -821,22 +960,27 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     // The output node: [dphase, phase, dec1, cost'] -> [phase', pose', cost']
     // (or [phase', u, cost']).
     let (np, nh, nc) = (phase.len(), s.ae_hidden, cost.len());
-    let rows = np + dec_out + nc;
-    let cols = 2 * np + nh + nc;
+    // Row blocks [phase', decoded, cost'] over column blocks [dphase,
+    // phase, dec1, cost'].
+    let out_rows = spans(&[np, dec_out, nc], "the output node's rows")?;
+    let out_cols = spans(&[np, np, nh, nc], "the output node's inputs")?;
+    let (rows, cols) = (out_rows[2].end, out_cols[3].end);
     let mut w = Array2::zeros((rows, cols));
     let mut b = Array1::zeros(rows);
-    for i in 0..np {
-        w[[i, i]] = a;
-        w[[i, np + i]] = 1.0 - a;
+    let blend = [a, 1.0 - a];
+    for (block, weight) in out_cols[..2].iter().zip(blend) {
+        w.slice_mut(ndarray::s![out_rows[0].clone(), block.clone()])
+            .diag_mut()
+            .fill(weight);
     }
     let [_, _, dec2] = &dec;
-    w.slice_mut(ndarray::s![np..np + dec_out, 2 * np..2 * np + nh])
+    w.slice_mut(ndarray::s![out_rows[1].clone(), out_cols[2].clone()])
         .assign(&dec2.w[0]);
-    b.slice_mut(ndarray::s![np..np + dec_out])
+    b.slice_mut(ndarray::s![out_rows[1].clone()])
         .assign(&dec2.b[0]);
-    for i in 0..nc {
-        w[[np + dec_out + i, 2 * np + nh + i]] = 1.0;
-    }
+    w.slice_mut(ndarray::s![out_rows[2].clone(), out_cols[3].clone()])
+        .diag_mut()
+        .fill(1.0);
     let out_layer = ExpertLayer {
         w: vec![w],
         b: vec![b],
@@ -854,7 +998,7 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
             Some(l) => {
                 layers.push(l);
                 GraphOp::Layer {
-                    layer: layers.len() - 1,
+                    layer: layers.len().saturating_sub(1), // just pushed
                     elu,
                 }
             }
@@ -866,7 +1010,7 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
             inputs,
             gate,
         });
-        nodes.len() - 1
+        nodes.len().saturating_sub(1)
     };
     let whole = |n: usize, width: usize| node_slice(n, &(0..width));
     let [g0, g1, g2] = gate;
@@ -1014,16 +1158,18 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
     );
     let output = whole(out, rows)?;
 
+    // An absolute model's decoded rows are the pose (dec_out == its
+    // width); a joint-velocity model's pose entry is empty.
     let blocks = match dof {
         None => [
-            (0..np, phase.clone()),
-            (np..np + pose.len(), pose.clone()),
-            (np + pose.len()..rows, cost.clone()),
+            (out_rows[0].clone(), phase.clone()),
+            (out_rows[1].clone(), pose.clone()),
+            (out_rows[2].clone(), cost.clone()),
         ],
         Some(_) => [
-            (0..np, phase.clone()),
+            (out_rows[0].clone(), phase.clone()),
             (np..np, pose.start..pose.start),
-            (np + dec_out..rows, cost.clone()),
+            (out_rows[2].clone(), cost.clone()),
         ],
     };
     // The output statistics, block after block: phase, pose (or the
@@ -1051,7 +1197,7 @@ pub fn net_from_omg(cfg: &OmgConfig, arrays: &BTreeMap<String, NpArray>) -> Resu
         blocks,
         target,
         dof: dof.map(|(skeleton, _)| DofForm {
-            u: np..np + dec_out,
+            u: out_rows[1].clone(),
             skeleton,
         }),
     })
@@ -1088,6 +1234,7 @@ pub fn read_omg(weights: &Path, config: &Path) -> Result<OmgNet> {
 }
 
 #[cfg(test)]
+#[allow(clippy::arithmetic_side_effects)] // test fixtures, not file input
 pub(crate) mod tests {
     use super::*;
     use crate::net::elu;
@@ -1765,5 +1912,58 @@ pub(crate) mod tests {
         });
         assert!(err(&c, &arrays)
             .starts_with("normalisation.mean[0] = 0, but the weights' norm.mean[0] = "));
+    }
+
+    /// Sizes whose products would wrap to the right block widths, and
+    /// layouts that would build another network than the one trained, are
+    /// refused with the field named.
+    #[test]
+    fn wrapping_sizes_and_overlapping_or_repeated_columns_are_refused() {
+        let (cfg, arrays) = tiny(3);
+        // 12 J and 2 K, 6 K wrap (mod 2^64) to the tiny model's 24, 2, 6.
+        let mut c = cfg.clone();
+        c.joints = 2 + (1 << 62);
+        assert_eq!(
+            err(&c, &arrays),
+            "J = 4611686018427387906: at most 65535 (a blob's widths are 16-bit)"
+        );
+        let mut c = cfg.clone();
+        c.key = 1 + (1 << 63);
+        assert!(err(&c, &arrays).starts_with("K = 9223372036854775809: at most 65535"));
+        let mut c = cfg.clone();
+        c.sizes.expert_hidden = usize::MAX;
+        assert!(err(&c, &arrays).starts_with("sizes.expert_hidden = 18446744073709551615: at most"));
+
+        let mut c = cfg.clone();
+        c.slices.insert("target".into(), [31, 40]);
+        assert_eq!(
+            err(&c, &arrays),
+            "slices.cost 26..32 and slices.target 31..40 overlap: X's blocks must be disjoint"
+        );
+        let mut c = cfg.clone();
+        c.slices.insert("rot".into(), [7, 20]);
+        assert_eq!(
+            err(&c, &arrays),
+            "slices.pos 2..8 and slices.rot 7..20 overlap"
+        );
+        let mut c = cfg.clone();
+        c.slices.insert("pos_cost".into(), [20, 29]);
+        assert_eq!(
+            err(&c, &arrays),
+            "slices.pos_cost 20..29 is not inside slices.cost 26..32"
+        );
+        let mut c = cfg.clone();
+        c.out_slices.insert("z".into(), [1, 4]);
+        assert_eq!(
+            err(&c, &arrays),
+            "out_slices.dphase 0..2 and out_slices.z 1..4 overlap: the last expert layer's \
+             blocks must be disjoint"
+        );
+        let mut c = cfg.clone();
+        c.encoder_columns = Some(vec![2, 3, 3]);
+        assert_eq!(
+            err(&c, &arrays),
+            "encoder_columns[2] = 3: the column is named twice"
+        );
     }
 }

@@ -301,8 +301,10 @@ impl TargetScript {
             if far(&t.position) || t.to.as_ref().is_some_and(far) {
                 bail!("{}: position beyond {MAX_TARGET_M} m", at());
             }
+            // The controller's own rule (`Reach::set_target`): any finite
+            // axis with a non-zero component has a direction.
             for axis in [t.forward, t.up].into_iter().flatten() {
-                if axis.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+                if phasegate_controller::reach::unit(axis).is_none() {
                     bail!("{}: an axis of no length", at());
                 }
             }
@@ -342,9 +344,10 @@ impl TargetScript {
     }
 }
 
+/// An axis [`TargetScript::checked`] accepted, normalised as the controller
+/// normalises (overflow-safe: scaled by its largest component first).
 fn unit(v: [f64; 3]) -> [f64; 3] {
-    let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
-    v.map(|x| x / n)
+    phasegate_controller::reach::unit(v).unwrap_or(v)
 }
 
 /// A key joint named or numbered in a script.
@@ -451,6 +454,27 @@ mod tests {
 
     fn script(json: &str) -> TargetScript {
         serde_json::from_str(json).unwrap()
+    }
+
+    /// Axes whose squares overflow or vanish keep their direction (the
+    /// controller's rule, `phasegate_controller::reach::unit`), also where
+    /// the f32 network input could not hold the values as written.
+    #[test]
+    fn axes_of_any_finite_size_keep_their_direction() {
+        let cfg = cfg();
+        let start = vec![0.0; 36];
+        let s = script(
+            r#"{"targets": [{"frame": 0, "joint": 0, "position": [0, 1, 0],
+                "forward": [1e300, 1e300, 0], "up": [0, 1e-300, 0]}]}"#,
+        );
+        let b = s.blocks(&cfg, &start, 1).unwrap();
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        assert!(
+            (b[0][12] - h).abs() < 1e-15 && (b[0][13] - h).abs() < 1e-15,
+            "{:?}",
+            &b[0][12..18]
+        );
+        assert_eq!(&b[0][15..18], &[0.0, 1.0, 0.0]);
     }
 
     #[test]
