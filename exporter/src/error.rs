@@ -164,3 +164,22 @@ mod tests {
         assert!(matches!(e, ImportError::Io { .. }));
     }
 }
+
+/// An import error that concerns the weights file of a (description,
+/// weights) pair rather than the description (an OMG `config.json` with
+/// its `model.safetensors`, a graph description with its `.npz`): a missing
+/// array, a wrong shape, a non-finite value. The readers name the weights
+/// file for these, the description for the rest.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct InWeights(pub String);
+
+/// [`InWeights`] as an [`anyhow::Error`].
+pub fn in_weights(message: String) -> anyhow::Error {
+    anyhow::Error::new(InWeights(message))
+}
+
+/// Whether `e` (or an error it wraps) is [`InWeights`].
+pub fn concerns_weights(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| c.is::<InWeights>())
+}

@@ -222,7 +222,7 @@ pub fn check(dir: &Path) -> Result<usize> {
 /// Checks the bundle in `dir` against its golden vectors, bit for bit.
 /// Returns the number of frames compared.
 fn check_bundle(dir: &Path) -> Result<usize> {
-    let blob = std::fs::read(dir.join("model.blob"))
+    let blob = exporter::atomic::read_input(&dir.join("model.blob"))
         .with_context(|| format!("cannot read {}/model.blob", dir.display()))?;
     let model =
         phasegate::Model::from_bytes(&blob).map_err(|e| anyhow::anyhow!("model.blob: {e}"))?;

@@ -1,7 +1,7 @@
 //! `host-sim`: the runtime on the host, float references, comparisons,
 //! demos and golden vectors.
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use clap::{Parser, Subcommand};
 use exporter::net::{GatingMode, Net};
 use std::path::{Path, PathBuf};
@@ -326,6 +326,7 @@ fn eval_cmd(
         let m = phasegate::Model::from_bytes(&blob)
             .map_err(|e| anyhow!("{}: {}", model.display(), exporter::inspect::explain(&e)))?;
         let x = npy::read_matrix_f32(inputs, m.input_dim())?;
+        check_frames(&x, inputs, &p, phases)?;
         let run = eval::run_fixed(&blob, &x, &p)?;
         let mut outputs = exporter::atomic::Outputs::new();
         outputs.add(out, npy::matrix_bytes(&run.outputs)?);
@@ -339,8 +340,40 @@ fn eval_cmd(
         };
         let net = load_reference(&r, g.into())?;
         let x = npy::read_matrix_f32(inputs, net.input_dim())?;
+        check_frames(&x, inputs, &p, phases)?;
         npy::write_matrix(out, &eval::run_reference(&net, &x, &p)?)
     }
+}
+
+/// The frames `eval` runs, checked before any is: one phase per input row,
+/// every value finite; errors name the file, row and column.
+fn check_frames(x: &npy::Matrix<f32>, inputs: &Path, p: &[f32], phases: &Path) -> Result<()> {
+    if x.rows != p.len() {
+        bail!(
+            "{} has {} input rows, but {} has {} phases (one per row)",
+            inputs.display(),
+            x.rows,
+            phases.display(),
+            p.len()
+        );
+    }
+    if let Some(i) = x.data.iter().position(|v| !v.is_finite()) {
+        bail!(
+            "{}: row {}, column {} is {}: inputs must be finite",
+            inputs.display(),
+            i / x.cols.max(1),
+            i % x.cols.max(1),
+            x.data[i]
+        );
+    }
+    if let Some(i) = p.iter().position(|v| !v.is_finite()) {
+        bail!(
+            "{}: phase {i} is {}: phases must be finite",
+            phases.display(),
+            p[i]
+        );
+    }
+    Ok(())
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -358,7 +391,8 @@ fn run(cli: Cli) -> Result<()> {
             let c = compare::compare(
                 &npy::read_matrix_f32_any(&a)?,
                 &npy::read_matrix_f32_any(&b)?,
-            )?;
+            )
+            .with_context(|| format!("{} vs {}", a.display(), b.display()))?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&c)?);
             } else {

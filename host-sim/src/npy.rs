@@ -114,7 +114,8 @@ fn write_npy<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
     write_atomic(path, &npy_bytes(shape, data)?)
 }
 
-fn npy_bytes<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
+/// The `.npy` bytes of an array of `shape`.
+pub(crate) fn npy_bytes<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
     shape: &[u64],
     data: &[T],
 ) -> Result<Vec<u8>> {

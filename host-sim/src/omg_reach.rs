@@ -70,7 +70,7 @@ impl HeldOut {
 /// from `data/<rig>/layout.json`; `None` when it has none.
 fn dof_columns(dir: &Path) -> Result<Option<std::ops::Range<usize>>> {
     let path = dir.join("layout.json");
-    let Ok(bytes) = std::fs::read(&path) else {
+    let Ok(bytes) = exporter::atomic::read_input(&path) else {
         return Ok(None);
     };
     let v: serde_json::Value =
@@ -127,7 +127,8 @@ impl HeldOut {
         let dir = data.join(rig);
         let meta_path = dir.join("clips.json");
         let meta: Vec<ClipMeta> = serde_json::from_slice(
-            &std::fs::read(&meta_path).with_context(|| format!("{}", meta_path.display()))?,
+            &exporter::atomic::read_input(&meta_path)
+                .with_context(|| format!("{}", meta_path.display()))?,
         )
         .with_context(|| format!("{}", meta_path.display()))?;
         let dof = dof_columns(&dir)?;
@@ -162,7 +163,7 @@ impl HeldOut {
                     )
                 })?;
                 out.spawned.push(spawned);
-                out.clips.push(clip_rows(&data, c, t, w, width));
+                out.clips.push(clip_rows(&path, &data, c, t, w, width)?);
                 out.q0.push(clip_q0(&data, c, t, w, &dof));
             }
         }
@@ -170,15 +171,28 @@ impl HeldOut {
     }
 }
 
-/// Clip `c`'s `t` frames of a `(clips, t, w)` array, their first `width`
-/// columns.
-fn clip_rows(data: &[f32], c: usize, t: usize, w: usize, width: usize) -> Vec<Vec<f64>> {
+/// Clip `c`'s `t` frames of a `(clips, t, w)` array read from `path`,
+/// their first `width` columns; a value that is not finite is refused
+/// here, naming the file, clip, frame and column (found in a rollout, it
+/// would name a frame of no file).
+fn clip_rows(
+    path: &Path,
+    data: &[f32],
+    c: usize,
+    t: usize,
+    w: usize,
+    width: usize,
+) -> Result<Vec<Vec<f64>>> {
     (0..t)
         .map(|f| {
-            data[(c * t + f) * w..][..width]
-                .iter()
-                .map(|&v| f64::from(v))
-                .collect()
+            let row = &data[(c * t + f) * w..][..width];
+            if let Some((col, v)) = row.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+                bail!(
+                    "{}: clip {c}, frame {f}, column {col} is {v}: clip data must be finite",
+                    path.display()
+                );
+            }
+            Ok(row.iter().map(|&v| f64::from(v)).collect())
         })
         .collect()
 }
@@ -219,7 +233,7 @@ pub fn rest_bones(omg: &OmgNet, dir: &Path, data: &Path, rig: &str) -> Result<Bo
         return Bones::new(&sk.parents, &sk.offsets).context("controller.skeleton");
     }
     for path in [data.join(rig).join("rig.json"), dir.join("rig.json")] {
-        if let Ok(bytes) = std::fs::read(&path) {
+        if let Ok(bytes) = exporter::atomic::read_input(&path) {
             return Bones::from_rig_json(&bytes).with_context(|| format!("{}", path.display()));
         }
     }
@@ -398,7 +412,9 @@ pub fn train_rollouts(d: &OmgDir, data: &Path, rig: &str, n: usize) -> Result<Re
     }
     let dof = dof_columns(&data.join(rig))?;
     let train = HeldOut {
-        clips: (0..n).map(|c| clip_rows(&values, c, t, w, width)).collect(),
+        clips: (0..n)
+            .map(|c| clip_rows(&path, &values, c, t, w, width))
+            .collect::<Result<_>>()?,
         spawned: vec![[0, 0]; n],
         q0: (0..n).map(|c| clip_q0(&values, c, t, w, &dof)).collect(),
     };
@@ -418,7 +434,7 @@ pub fn train_rollouts(d: &OmgDir, data: &Path, rig: &str, n: usize) -> Result<Re
 pub(crate) fn rig_of(dir: &Path) -> Result<String> {
     let path = dir.join("config.json");
     let v: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&path).with_context(|| format!("{}", path.display()))?,
+        &exporter::atomic::read_input(&path).with_context(|| format!("{}", path.display()))?,
     )
     .with_context(|| format!("{}", path.display()))?;
     v["rig"]
@@ -1061,6 +1077,40 @@ mod tests {
     /// The JSON uses `metrics.py`'s names (`roughness`) and leaves out the
     /// joint error where there is no data; the bars judge plausible reach
     /// and the p99 joint difference per weight width.
+    /// A NaN in a data clip is refused when the clips are read, naming the
+    /// file, the clip, the frame and the column.
+    #[test]
+    fn a_bad_value_in_a_data_clip_names_the_file_and_the_place() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("R1");
+        std::fs::create_dir(&dir).unwrap();
+        std::fs::write(
+            dir.join("clips.json"),
+            r#"[{"split": "test", "row": 0, "spawned": [1, 1]},
+                {"split": "test", "row": 1, "spawned": [1, 1]}]"#,
+        )
+        .unwrap();
+        let (clips, t, w) = (2, 3, 4);
+        let mut data = vec![0.5f32; clips * t * w];
+        data[(t + 2) * w + 1] = f32::NAN; // clip 1, frame 2, column 1
+        let path = dir.join("test.npy");
+        let bytes = crate::npy::npy_bytes(&[clips as u64, t as u64, w as u64], &data).unwrap();
+        std::fs::write(&path, bytes).unwrap();
+        let e = format!(
+            "{:#}",
+            HeldOut::read_splits(tmp.path(), "R1", 4, &["test"], 2)
+                .err()
+                .unwrap()
+        );
+        assert_eq!(
+            e,
+            format!(
+                "{}: clip 1, frame 2, column 1 is NaN: clip data must be finite",
+                path.display()
+            )
+        );
+    }
+
     #[test]
     fn rows_are_named_as_metrics_py_names_them_and_the_bars_judge_them() {
         let rows = [

@@ -392,3 +392,71 @@ fn several_outputs_are_written_together_or_not_at_all() {
     let outputs = [("--picture", "reach.png"), ("--gif", "reach.gif")];
     exporter::cli_contract::written_together_or_not_at_all(bin, true, &prefix, &outputs, &[]);
 }
+
+/// Value errors found after parsing name the file and where in it:
+/// `eval`'s inputs and phases (a NaN, one phase per row), `compare`'s pair.
+#[test]
+fn eval_and_compare_value_errors_name_the_file_and_the_row() {
+    use host_sim::npy::{read_matrix_f32_any, write_matrix, write_vector};
+    let tmp = tempfile::tempdir().unwrap();
+    let mut x = read_matrix_f32_any(&golden("inputs.npy")).unwrap();
+    x.data[x.cols + 2] = f32::NAN;
+    let (xn, p3, pn) = (
+        tmp.path().join("xn.npy"),
+        tmp.path().join("p3.npy"),
+        tmp.path().join("pn.npy"),
+    );
+    write_matrix(&xn, &x).unwrap();
+    write_vector(&p3, &[0f32; 3]).unwrap();
+    let mut p = vec![0f32; x.rows];
+    p[5] = f32::INFINITY;
+    write_vector(&pn, &p).unwrap();
+    let y = tmp.path().join("y.npy");
+    let blob = golden("model.blob");
+    let (inputs, phases) = (golden("inputs.npy"), golden("phases.npy"));
+    for (args, says) in [
+        (
+            vec!["--inputs", s(&inputs), "--phases", s(&p3)],
+            format!(
+                "{} has 64 input rows, but {} has 3 phases (one per row)",
+                inputs.display(),
+                p3.display()
+            ),
+        ),
+        (
+            vec!["--inputs", s(&xn), "--phases", s(&phases)],
+            format!(
+                "{}: row 1, column 2 is NaN: inputs must be finite",
+                xn.display()
+            ),
+        ),
+        (
+            vec!["--inputs", s(&inputs), "--phases", s(&pn)],
+            format!("{}: phase 5 is inf: phases must be finite", pn.display()),
+        ),
+    ] {
+        for source in [
+            vec!["--model", s(&blob)],
+            vec!["--reference", s(&golden("model.npz")), "--gating", "cubic"],
+        ] {
+            let mut a = vec!["eval"];
+            a.extend(&source);
+            a.extend(&args);
+            a.extend(["--out", s(&y)]);
+            let o = host_sim(&a);
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(err.trim_end(), format!("error: {says}"), "{a:?}");
+            assert!(!y.exists());
+        }
+    }
+    let o = host_sim(&["compare", s(&golden("expected.npy")), s(&inputs)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.starts_with(&format!(
+            "error: {} vs {}: shapes differ",
+            golden("expected.npy").display(),
+            inputs.display()
+        )),
+        "{err}"
+    );
+}

@@ -283,7 +283,15 @@ fn safetensors_shape_whose_element_count_overflows() {
         ),
     );
     let out = d.path("g.blob");
-    refused(&export_graph(&json, &st, &out), &["g.safetensors"], &out);
+    // The library's message names no tensor; ours does.
+    refused(
+        &export_graph(&json, &st, &out),
+        &[
+            "g.safetensors: not a valid safetensors file: tensor fc.weight: shape \
+             [4294967296, 4294967296, 16] of F32 declares more bytes than fit in memory",
+        ],
+        &out,
+    );
 }
 
 /// The same in a `.npy` handed to `host-sim compare` (which exited 0,
@@ -450,7 +458,14 @@ fn safetensors_tensors_that_overlap() {
         ),
     );
     let out = d.path("g.blob");
-    refused(&export_graph(&json, &st, &out), &["g.safetensors"], &out);
+    refused(
+        &export_graph(&json, &st, &out),
+        &[
+            "g.safetensors: not a valid safetensors file: tensor fc.bias: data_offsets [36, 48] \
+           do not start at the end of tensor fc.weight (48)",
+        ],
+        &out,
+    );
 }
 
 #[test]
@@ -468,7 +483,14 @@ fn safetensors_offsets_past_the_data() {
         ),
     );
     let out = d.path("g.blob");
-    refused(&export_graph(&json, &st, &out), &["g.safetensors"], &out);
+    refused(
+        &export_graph(&json, &st, &out),
+        &[
+            "g.safetensors: not a valid safetensors file: the tensors' data ends at byte 60 \
+           (tensor fc.bias), but the file has 52 data bytes",
+        ],
+        &out,
+    );
 }
 
 // ---- missing arrays and files ----------------------------------------------
@@ -522,10 +544,30 @@ fn graph_description_that_does_not_fit_its_weights() {
         ),
     );
     let out = d.path("g.blob");
-    refused(
+    let err = refused(
         &export_graph(&json, &st, &out),
-        &["g.json", "fc.weight"],
+        &[
+            "node 0 (\"fc\"): array \"fc.weight\" has 5 inputs, but the node's input slices \
+             give 4 (the weights of ",
+            "g.json)",
+        ],
         &out,
+    );
+    assert!(
+        err.starts_with(&format!("error: {}: ", st.display())),
+        "the weights file first: {err}"
+    );
+    // A description error names the description.
+    let bad = d.file(
+        "bad.json",
+        GRAPH
+            .replace("\"op\": \"dense\"", "\"op\": \"dense\", \"gate\": \"nope\"")
+            .as_bytes(),
+    );
+    let err = refused(&export_graph(&bad, &st, &out), &["gate \"nope\""], &out);
+    assert!(
+        err.starts_with(&format!("error: {}: ", bad.display())),
+        "the description first: {err}"
     );
 }
 

@@ -6,6 +6,7 @@
 
 #![deny(clippy::arithmetic_side_effects)]
 
+use crate::io::sizes::element_count;
 use anyhow::{anyhow, bail, Context, Result};
 use half::{bf16, f16};
 use npyz::WriterBuilder;
@@ -277,8 +278,10 @@ pub fn read_safetensors(path: &Path) -> Result<BTreeMap<String, NpArray>> {
 /// contiguous and not overlapping, sizes that fit) is checked by the
 /// `safetensors` crate; here only the dtypes and the values.
 pub fn parse_safetensors(bytes: &[u8]) -> Result<BTreeMap<String, NpArray>> {
-    let st = SafeTensors::deserialize(bytes)
-        .map_err(|e| anyhow!("not a valid safetensors file: {e}"))?;
+    let st = SafeTensors::deserialize(bytes).map_err(|e| {
+        let why = safetensors_diagnosis(bytes).unwrap_or_else(|| e.to_string());
+        anyhow!("not a valid safetensors file: {why}")
+    })?;
     let mut out = BTreeMap::new();
     for (name, view) in st.tensors() {
         let (width, conv): (usize, fn(&[u8]) -> f64) = match view.dtype() {
@@ -309,6 +312,90 @@ pub fn parse_safetensors(bytes: &[u8]) -> Result<BTreeMap<String, NpArray>> {
         );
     }
     Ok(out)
+}
+
+/// Bits per element of a `.safetensors` dtype name, as the format defines
+/// them (`None`: a name the format does not have).
+fn dtype_bits(dtype: &str) -> Option<usize> {
+    Some(match dtype {
+        "F64" | "I64" | "U64" | "C64" => 64,
+        "F32" | "I32" | "U32" => 32,
+        "F16" | "BF16" | "I16" | "U16" => 16,
+        "F8_E5M2" | "F8_E4M3" | "F8_E8M0" | "I8" | "U8" | "BOOL" => 8,
+        "F6_E2M3" | "F6_E3M2" => 6,
+        "F4" => 4,
+        _ => return None,
+    })
+}
+
+/// Why the `safetensors` library refused `bytes`, naming the tensor: its
+/// own errors for a shape whose size overflows, a shape that does not fit
+/// its offsets or data that does not end where the file does name none.
+/// The checks are the library's (tensors in offset order, each starting
+/// where the one before ended, holding exactly its shape's bytes, the last
+/// ending at the end of the file); `None` if none fails here (the library's
+/// message is then used as it is).
+fn safetensors_diagnosis(bytes: &[u8]) -> Option<String> {
+    let len = u64::from_le_bytes(bytes.get(..8)?.try_into().ok()?);
+    let end = 8usize.checked_add(usize::try_from(len).ok()?)?;
+    let header: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_slice(bytes.get(8..end)?).ok()?;
+    let data_len = bytes.len().saturating_sub(end);
+    let mut tensors: Vec<(&str, &serde_json::Value, [u64; 2])> = header
+        .iter()
+        .filter(|(name, _)| *name != "__metadata__")
+        .filter_map(|(name, t)| {
+            let offs = t.get("data_offsets")?.as_array()?;
+            Some((
+                name.as_str(),
+                t,
+                [offs.first()?.as_u64()?, offs.get(1)?.as_u64()?],
+            ))
+        })
+        .collect();
+    tensors.sort_by_key(|(_, _, [s, e])| (*s, *e));
+    let mut at = 0u64;
+    let mut previous: Option<&str> = None;
+    for (name, t, [s, e]) in &tensors {
+        if *s != at || e < s {
+            let after = previous.map_or("the start of the data".to_string(), |p| {
+                format!("the end of tensor {p}")
+            });
+            return Some(format!(
+                "tensor {name}: data_offsets [{s}, {e}] do not start at {after} ({at})"
+            ));
+        }
+        at = *e;
+        previous = Some(name);
+        let dtype = t.get("dtype")?.as_str()?;
+        let shape: Vec<u64> = t
+            .get("shape")?
+            .as_array()?
+            .iter()
+            .map(serde_json::Value::as_u64)
+            .collect::<Option<_>>()?;
+        let bits = element_count(&shape).and_then(|n| n.checked_mul(dtype_bits(dtype)?));
+        let Some(bits) = bits else {
+            return Some(format!(
+                "tensor {name}: shape {shape:?} of {dtype} declares more bytes than fit in memory"
+            ));
+        };
+        let need = bits.div_ceil(8);
+        let have = e.saturating_sub(*s);
+        if u64::try_from(need).ok() != Some(have) {
+            return Some(format!(
+                "tensor {name}: data_offsets [{s}, {e}] hold {have} bytes, but shape {shape:?} \
+                 of {dtype} needs {need}"
+            ));
+        }
+    }
+    if u64::try_from(data_len).ok() != Some(at) {
+        let last = previous.map_or(String::new(), |p| format!(" (tensor {p})"));
+        return Some(format!(
+            "the tensors' data ends at byte {at}{last}, but the file has {data_len} data bytes"
+        ));
+    }
+    None
 }
 
 /// Writes f32 arrays as a `.safetensors` file (the layout
@@ -498,14 +585,27 @@ mod tests {
         // A shape that does not match its bytes, and offsets past the end.
         let short = safetensors_bytes(&[("a", vec![3], [0, 8])], 8);
         let past = safetensors_bytes(&[("a", vec![2], [0, 8])], 4);
-        for (what, bytes) in [
-            ("overlap", overlap),
-            ("huge", huge),
-            ("short", short),
-            ("past", past),
+        for (bytes, says) in [
+            (
+                overlap,
+                "tensor b: data_offsets [4, 12] do not start at the end of tensor a (8)",
+            ),
+            (
+                huge,
+                "tensor a: shape [4294967296, 4294967296, 16] of F32 declares more bytes \
+                 than fit in memory",
+            ),
+            (
+                short,
+                "tensor a: data_offsets [0, 8] hold 8 bytes, but shape [3] of F32 needs 12",
+            ),
+            (
+                past,
+                "the tensors' data ends at byte 8 (tensor a), but the file has 4 data bytes",
+            ),
         ] {
             let e = parse_safetensors(&bytes).unwrap_err().to_string();
-            assert!(e.contains("not a valid safetensors file"), "{what}: {e}");
+            assert_eq!(e, format!("not a valid safetensors file: {says}"));
         }
     }
 }

@@ -32,6 +32,7 @@ use serde::{Deserialize, Serialize};
 
 use super::graph::{Graph, GraphNode, GraphOp};
 use super::{ExpertLayer, GatingMode, Net, NetLayer, Wiring};
+use crate::error::in_weights;
 use crate::io::tensors::NpArray;
 use phasegate::blob::{GateSource, Slice, Source, MAX_NODES, MAX_NODE_INPUTS};
 
@@ -148,9 +149,12 @@ fn parse_slice(text: &str, names: &BTreeMap<&str, (u8, usize)>, input_dim: usize
 fn vector(arrays: &BTreeMap<String, NpArray>, name: &str, len: usize) -> Result<Array1<f64>> {
     let a = arrays
         .get(name)
-        .ok_or_else(|| anyhow!("missing array {name:?}"))?;
+        .ok_or_else(|| in_weights(format!("missing array {name:?}")))?;
     if a.data.len() != len || a.shape.len() != 1 {
-        bail!("array {name:?} has shape {:?}, expected ({len})", a.shape);
+        return Err(in_weights(format!(
+            "array {name:?} has shape {:?}, expected ({len})",
+            a.shape
+        )));
     }
     Ok(Array1::from(a.data.clone()))
 }
@@ -164,48 +168,58 @@ fn dense(
 ) -> Result<ExpertLayer> {
     let w = arrays
         .get(weight)
-        .ok_or_else(|| anyhow!("missing array {weight:?}"))?;
+        .ok_or_else(|| in_weights(format!("missing array {weight:?}")))?;
     let (k, out, inp) = match (
         crate::io::sizes::dims::<2>(&w.shape),
         crate::io::sizes::dims::<3>(&w.shape),
     ) {
         (Some([o, i]), _) => (1, o, i),
         (_, Some([k, o, i])) => (k, o, i),
-        _ => bail!(
-            "array {weight:?} has shape {:?}, expected (out, in) or (K, out, in)",
-            w.shape
-        ),
+        _ => {
+            return Err(in_weights(format!(
+                "array {weight:?} has shape {:?}, expected (out, in) or (K, out, in)",
+                w.shape
+            )))
+        }
     };
     if inp != in_dim {
-        bail!("array {weight:?} has {inp} inputs, but the node's input slices give {in_dim}");
+        return Err(in_weights(format!(
+            "array {weight:?} has {inp} inputs, but the node's input slices give {in_dim}"
+        )));
     }
     let (per, rows) = (
         crate::io::sizes::mul(out, inp, weight)?,
         crate::io::sizes::mul(k, out, weight)?,
     );
     if k == 0 || per == 0 {
-        bail!("array {weight:?} is empty");
+        return Err(in_weights(format!("array {weight:?} is empty")));
     }
     if crate::io::sizes::element_count(&w.shape) != Some(w.data.len()) {
-        bail!(
+        return Err(in_weights(format!(
             "array {weight:?} does not hold the elements of its shape {:?}",
             w.shape
-        );
+        )));
     }
     let b = match arrays.get(bias) {
         None => vec![0.0; rows],
         Some(b) if b.data.len() == rows => b.data.clone(),
         Some(b) if b.data.len() == out => b.data.repeat(k),
-        Some(b) => bail!(
-            "array {bias:?} has shape {:?}, expected ({k}, {out}) or ({out})",
-            b.shape
-        ),
+        Some(b) => {
+            return Err(in_weights(format!(
+                "array {bias:?} has shape {:?}, expected ({k}, {out}) or ({out})",
+                b.shape
+            )))
+        }
     };
     if let Some(i) = w.data.iter().position(|v| !v.is_finite()) {
-        bail!("array {weight:?} has a non-finite value at index {i}");
+        return Err(in_weights(format!(
+            "array {weight:?} has a non-finite value at index {i}"
+        )));
     }
     if let Some(i) = b.iter().position(|v| !v.is_finite()) {
-        bail!("array {bias:?} has a non-finite value at index {i}");
+        return Err(in_weights(format!(
+            "array {bias:?} has a non-finite value at index {i}"
+        )));
     }
     Ok(ExpertLayer {
         w: w.data
@@ -391,7 +405,22 @@ pub fn read_graph(json: &Path, weights: &Path) -> Result<Net> {
     let file: GraphFile = serde_json::from_str(&text)
         .with_context(|| format!("{}: not a graph description", json.display()))?;
     let arrays = crate::io::tensors::read_arrays(weights)?;
-    net_from_file(&file, &arrays).with_context(|| format!("{}", json.display()))
+    net_from_file(&file, &arrays).map_err(|e| name_the_file(e, json, weights))
+}
+
+/// `e` as one line naming the file of the (description, weights) pair it
+/// concerns: the weights file (and whose weights) for a missing array, a
+/// wrong shape or a bad value, the description for the rest.
+pub(crate) fn name_the_file(e: anyhow::Error, description: &Path, weights: &Path) -> anyhow::Error {
+    if crate::error::concerns_weights(&e) {
+        anyhow!(
+            "{}: {e:#} (the weights of {})",
+            weights.display(),
+            description.display()
+        )
+    } else {
+        anyhow!("{}: {e:#}", description.display())
+    }
 }
 
 fn slice_text(g: &Graph, s: &Slice, width: usize) -> String {

@@ -64,6 +64,7 @@ use serde::Deserialize;
 
 use super::graph::{Graph, GraphNode, GraphOp};
 use super::{ExpertLayer, GatingMode, Net, NetLayer, Wiring};
+use crate::error::in_weights;
 use crate::io::sizes::{add, mul};
 use crate::io::tensors::NpArray;
 use crate::ops::{DecLayer, RbfLayer};
@@ -535,13 +536,15 @@ impl OmgNet {
 fn get<'a>(arrays: &'a BTreeMap<String, NpArray>, name: &str) -> Result<&'a NpArray> {
     arrays
         .get(name)
-        .ok_or_else(|| anyhow!("tensor {name:?} is missing"))
+        .ok_or_else(|| in_weights(format!("tensor {name:?} is missing")))
 }
 
 fn check_shape(a: &NpArray, name: &str, want: &[usize], why: &str) -> Result<()> {
     let got: Vec<usize> = a.shape.iter().map(|&d| d as usize).collect();
     if got != want {
-        bail!("tensor {name:?} has shape {got:?}, expected {want:?} ({why})");
+        return Err(in_weights(format!(
+            "tensor {name:?} has shape {got:?}, expected {want:?} ({why})"
+        )));
     }
     Ok(())
 }
@@ -700,7 +703,9 @@ fn normalisation(
     let s = get(arrays, "norm.std")?;
     check_shape(s, "norm.std", &[n], &why)?;
     if let Some(i) = s.data.iter().position(|v| *v < 0.0) {
-        bail!("tensor \"norm.std\" is negative at index {i}");
+        return Err(in_weights(format!(
+            "tensor \"norm.std\" is negative at index {i}"
+        )));
     }
     let std: Array1<f64> = s
         .data
@@ -744,11 +749,15 @@ fn dof_statistics(
     check_shape(s, "norm.dof_std", &[d], &why)?;
     for (name, a) in [("norm.dof_mean", m), ("norm.dof_std", s)] {
         if let Some(i) = a.data.iter().position(|v| !v.is_finite()) {
-            bail!("tensor {name:?} is not finite at index {i}");
+            return Err(in_weights(format!(
+                "tensor {name:?} is not finite at index {i}"
+            )));
         }
     }
     if let Some(i) = s.data.iter().position(|v| *v < 0.0) {
-        bail!("tensor \"norm.dof_std\" is negative at index {i}");
+        return Err(in_weights(format!(
+            "tensor \"norm.dof_std\" is negative at index {i}"
+        )));
     }
     let std: Array1<f64> = s
         .data
@@ -1223,14 +1232,7 @@ pub fn read_omg(weights: &Path, config: &Path) -> Result<OmgNet> {
     let cfg: OmgConfig = serde_json::from_str(&text)
         .with_context(|| format!("{}: not an OMG config", config.display()))?;
     let arrays = crate::io::tensors::read_arrays(weights)?;
-    net_from_omg(&cfg, &arrays).map_err(|e| {
-        let file = if e.to_string().starts_with("tensor") {
-            weights
-        } else {
-            config
-        };
-        anyhow!("{}: {e:#}", file.display())
-    })
+    net_from_omg(&cfg, &arrays).map_err(|e| super::json::name_the_file(e, config, weights))
 }
 
 #[cfg(test)]
@@ -1840,7 +1842,10 @@ pub(crate) mod tests {
         std::fs::write(&c, serde_json::to_string(&json).unwrap()).unwrap();
         let e = format!("{:#}", read_omg(&w, &c).unwrap_err());
         assert!(
-            e.ends_with("model.safetensors: tensor \"norm.dof_std\" is missing"),
+            e.ends_with(&format!(
+                "model.safetensors: tensor \"norm.dof_std\" is missing (the weights of {})",
+                c.display()
+            )),
             "{e}"
         );
     }

@@ -46,6 +46,10 @@ pub const BUILTIN: [&str; 6] = [
     "crouch-walk",
 ];
 
+/// Largest `turn` of a segment, radians per second: ten turns a second;
+/// beyond it the heading is noise.
+pub const MAX_TURN: f64 = 20.0 * std::f64::consts::PI;
+
 /// One timed command.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Segment {
@@ -194,11 +198,37 @@ impl Script {
             if !c.at.is_finite() || c.at < 0.0 || !c.turn.is_finite() {
                 bail!("command {i}: `at` must be a finite non-negative time and `turn` finite");
             }
+            if c.turn.abs() > MAX_TURN {
+                bail!(
+                    "command {i}: turn = {} rad/s, at most {MAX_TURN:.1} (ten turns a second)",
+                    c.turn
+                );
+            }
+            let gait = parse_gait(c.gait.as_ref()).with_context(|| format!("command {i}"))?;
+            // JSON has no infinities: a non-finite f32 here was a finite
+            // number beyond f32's range, which the controller would refuse
+            // at its frame without naming the script.
+            let fields = [
+                ("velocity[0]", Some(c.velocity[0])),
+                ("velocity[1]", Some(c.velocity[1])),
+                ("facing[0]", c.facing.map(|f| f[0])),
+                ("facing[1]", c.facing.map(|f| f[1])),
+                ("gait.stand", Some(gait.stand)),
+                ("gait.walk", Some(gait.walk)),
+                ("gait.jog", Some(gait.jog)),
+                ("gait.crouch", Some(gait.crouch)),
+            ];
+            if let Some((field, _)) = fields
+                .iter()
+                .find(|(_, v)| v.is_some_and(|v| !v.is_finite()))
+            {
+                bail!("command {i}: {field} is beyond the range of f32 (about 3.4e38)");
+            }
             commands.push(Segment {
                 at: c.at,
                 velocity: c.velocity,
                 facing: c.facing,
-                gait: parse_gait(c.gait.as_ref()).with_context(|| format!("command {i}"))?,
+                gait,
                 turn: c.turn,
             });
         }
@@ -309,5 +339,36 @@ mod tests {
         assert!(Script::from_json(r#"{"commands": [{"at": 0, "speed": 3}]}"#).is_err());
         assert!(Script::from_json(r#"{"commands": [{"at": 0, "gait": "run"}]}"#).is_err());
         assert!(Script::load("no-such-script-or-file").is_err());
+    }
+
+    /// A finite JSON number that is infinite as f32 is refused when the
+    /// script is read, naming the file, the command and the field (not at
+    /// its frame, by the controller, naming neither).
+    #[test]
+    fn numbers_beyond_f32_and_absurd_turns_are_refused_naming_the_field() {
+        let dir = tempfile::tempdir().unwrap();
+        for (json, says) in [
+            (
+                r#"{"commands": [{"at": 0}, {"at": 1, "velocity": [0, 1e39]}]}"#,
+                "command 1: velocity[1] is beyond the range of f32",
+            ),
+            (
+                r#"{"commands": [{"at": 0, "facing": [-1e300, 0]}]}"#,
+                "command 0: facing[0] is beyond the range of f32",
+            ),
+            (
+                r#"{"commands": [{"at": 0, "gait": {"jog": 4e38}}]}"#,
+                "command 0: gait.jog is beyond the range of f32",
+            ),
+            (
+                r#"{"commands": [{"at": 0, "turn": 1e39}]}"#,
+                "command 0: turn = 1000000000000000000000000000000000000000 rad/s, at most 62.8",
+            ),
+        ] {
+            let path = dir.path().join("s.json");
+            std::fs::write(&path, json).unwrap();
+            let e = format!("{:#}", Script::load(path.to_str().unwrap()).unwrap_err());
+            assert!(e.starts_with(&format!("{}: {says}", path.display())), "{e}");
+        }
     }
 }
