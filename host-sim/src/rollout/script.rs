@@ -200,7 +200,7 @@ impl Script {
             }
             if c.turn.abs() > MAX_TURN {
                 bail!(
-                    "command {i}: turn = {} rad/s, at most {MAX_TURN:.1} (ten turns a second)",
+                    "command {i}: turn = {:e} rad/s, at most {MAX_TURN:.1} (ten turns a second)",
                     c.turn
                 );
             }
@@ -362,7 +362,7 @@ mod tests {
             ),
             (
                 r#"{"commands": [{"at": 0, "turn": 1e39}]}"#,
-                "command 0: turn = 1000000000000000000000000000000000000000 rad/s, at most 62.8",
+                "command 0: turn = 1e39 rad/s, at most 62.8 (ten turns a second)",
             ),
         ] {
             let path = dir.path().join("s.json");
