@@ -10,7 +10,7 @@ use crate::cp::als::{AlsOptions, AlsResult};
 use crate::cp::distill::{
     distill, DistillData, DistillOptions, DistillReport, DEFAULT_NORMAL_FRACTION,
 };
-use crate::cp::import::{read_cp_net, write_cp_net};
+use crate::cp::import::{cp_net_bytes, read_cp_net};
 use crate::cp::report::{
     measure_ranks, output_error, run_blob, run_float, tables_error, OutputError,
 };
@@ -382,10 +382,25 @@ pub fn cp(args: &CpArgs) -> Result<()> {
         rollout_sets,
         blob: blob_report,
     };
-    if let Some(p) = &args.factors_out {
-        write_cp_net(&net, p)?;
+    // The blob, its report and the factors: all of them or none.
+    let factors = args
+        .factors_out
+        .as_ref()
+        .map(|p| Ok::<_, anyhow::Error>((p.as_path(), cp_net_bytes(&net)?)))
+        .transpose()?;
+    let text = args
+        .report
+        .as_ref()
+        .map(|_| serde_json::to_vec_pretty(&report))
+        .transpose()?;
+    let mut files: Vec<(&Path, &[u8])> = vec![(args.output.as_path(), blob.as_slice())];
+    if let (Some(path), Some(text)) = (&args.report, &text) {
+        files.push((path.as_path(), text));
     }
-    write_both(&blob, &report, &args.output, args.report.as_deref())?;
+    if let Some((path, bytes)) = &factors {
+        files.push((path, bytes));
+    }
+    crate::io::atomic::write_together(&files)?;
     print_cp_summary(&report, &args.output);
     Ok(())
 }

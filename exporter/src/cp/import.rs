@@ -330,6 +330,11 @@ fn layer_arrays(op: &NetLayer, suffix: &str, bias_name: &str, out: &mut Arrays) 
 
 /// Writes a network in the layout above (float32).
 pub fn write_cp_net(net: &Net, path: &Path) -> Result<()> {
+    crate::io::atomic::write_atomic(path, &cp_net_bytes(net)?)
+}
+
+/// The `.npz` bytes [`write_cp_net`] writes.
+pub fn cp_net_bytes(net: &Net) -> Result<Vec<u8>> {
     let v = |a: &Array1<f64>| (vec![a.len() as u64], f32s(a.iter().copied()));
     let mut arrays: Arrays = Vec::new();
     for (n, a) in [
@@ -348,7 +353,7 @@ pub fn write_cp_net(net: &Net, path: &Path) -> Result<()> {
         .iter()
         .map(|(n, s, d)| (n.as_str(), s.clone(), d.clone()))
         .collect();
-    crate::io::tensors::write_npz(path, &refs)
+    crate::io::tensors::npz_bytes(&refs)
 }
 
 /// Writes an adapter in the layout above (float32).

@@ -291,7 +291,8 @@ pub struct PlotErrorsArgs {
 /// drift, heading drift and phase error against frame number.
 pub fn plot_errors_cmd(args: &PlotErrorsArgs) -> Result<()> {
     let (a, b) = (Rollout::read(&args.a)?, Rollout::read(&args.b)?);
-    let cmp = compare(&a, &b)?;
+    let cmp =
+        compare(&a, &b).with_context(|| format!("{} vs {}", args.a.display(), args.b.display()))?;
     let title = format!("{}  vs  {}", args.b.display(), args.a.display());
     let c = plot_errors(&cmp, &title);
     c.save_png(&args.out)?;
@@ -373,7 +374,7 @@ pub fn plot_errors(cmp: &crate::rollout::Comparison, title: &str) -> Canvas {
 /// `host-sim render` of OMG reaching rollouts: the front and side views of
 /// [`crate::omg_rollout::picture`], and with `--gif` its animation.
 fn render_omg(args: &RenderArgs) -> Result<()> {
-    use crate::omg_rollout::picture::{draw, draw_gif, Layer};
+    use crate::omg_rollout::picture::{gif_bytes, png_bytes, Layer};
     use crate::omg_rollout::record::OmgRecord;
     let a = OmgRecord::read(&args.a)?;
     let b = args.b.as_ref().map(|p| OmgRecord::read(p)).transpose()?;
@@ -409,16 +410,24 @@ fn render_omg(args: &RenderArgs) -> Result<()> {
             width: 4.0,
         });
     }
-    draw(
-        &layers,
-        "OMG reaching rollout: front and side views",
-        args.snapshots.clamp(1, 40),
+    // The picture and the animation together, or neither.
+    let mut outputs = exporter::atomic::Outputs::new();
+    for p in std::iter::once(&args.out).chain(&args.gif) {
+        if let Some(d) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+            outputs.dir(d);
+        }
+    }
+    let title = "OMG reaching rollout: front and side views";
+    outputs.add(
         &args.out,
-    )?;
-    println!("wrote {}", args.out.display());
+        png_bytes(&layers, title, args.snapshots.clamp(1, 40), &args.out)?,
+    );
     if let Some(gif) = &args.gif {
-        draw_gif(&layers, "OMG reaching rollout", gif, 3)?;
-        println!("wrote {}", gif.display());
+        outputs.add(gif, gif_bytes(&layers, "OMG reaching rollout", gif, 3)?);
+    }
+    outputs.commit()?;
+    for p in std::iter::once(&args.out).chain(&args.gif) {
+        println!("wrote {}", p.display());
     }
     Ok(())
 }

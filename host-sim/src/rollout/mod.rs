@@ -236,7 +236,8 @@ pub fn rollout_compare_cmd(args: &RolloutCompareArgs) -> Result<()> {
         return Ok(());
     }
     let (a, b) = (Rollout::read(&args.a)?, Rollout::read(&args.b)?);
-    let c = compare(&a, &b)?;
+    let c =
+        compare(&a, &b).with_context(|| format!("{} vs {}", args.a.display(), args.b.display()))?;
     println!("A = {}\nB = {}\n", args.a.display(), args.b.display());
     print!("{}", c.table(args.every));
     println!("\nA {}", sanity(&a));
