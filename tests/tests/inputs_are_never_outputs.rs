@@ -367,7 +367,7 @@ fn no_command_writes_over_one_of_its_inputs() {
     std::fs::create_dir(&out).unwrap();
     let mut runs = 0;
     for c in &cases {
-        for (k, flag) in c.outputs.iter().enumerate() {
+        for k in 0..c.outputs.len() {
             for input in &c.inputs {
                 let before = std::fs::read(input).unwrap();
                 let mut args = c.args.clone();
