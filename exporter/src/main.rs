@@ -633,6 +633,7 @@ fn run(cli: Cli) -> Result<()> {
 
 fn main() -> ExitCode {
     exporter::atomic::guard_inputs();
+    exporter::atomic::clean_up_on_interrupt();
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -460,3 +460,40 @@ fn eval_and_compare_value_errors_name_the_file_and_the_row() {
         "{err}"
     );
 }
+
+/// A long but legal run (an hour of frames) interrupted by Ctrl-C ends at
+/// once with exit code 130 and one line, and leaves no output and no
+/// temporary file (`exporter::atomic::clean_up_on_interrupt`).
+#[cfg(unix)]
+#[test]
+fn an_interrupted_run_leaves_no_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("hour.npz");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .args([
+            "rollout",
+            "--model",
+            s(&golden("model.blob")),
+            "--script",
+            "walk",
+            "--frames",
+            "216000",
+            "--out",
+            s(&out),
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let k = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(k.success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{err}");
+    assert_eq!(err.trim_end(), "error: interrupted; no output written");
+    let left: Vec<_> = std::fs::read_dir(tmp.path()).unwrap().collect();
+    assert!(left.is_empty(), "{left:?}");
+}

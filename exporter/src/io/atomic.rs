@@ -18,6 +18,28 @@ use std::sync::Mutex;
 
 static GUARD: AtomicBool = AtomicBool::new(false);
 static INPUTS: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+/// The temporary files staged and not yet renamed into place; held while
+/// the renames run, so that an interrupt waits for them.
+static STAGED: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+/// Exit code of a run interrupted by Ctrl-C or SIGTERM (128 + SIGINT).
+pub const INTERRUPTED: i32 = 130;
+
+/// Makes Ctrl-C and SIGTERM end the run with one line and exit code
+/// [`INTERRUPTED`], leaving no partial output: temporaries being staged
+/// are removed, and an interrupt that comes while a command's outputs are
+/// being renamed into place waits until all of them are (so the run leaves
+/// every output or none). Called first thing by `exporter` and `host-sim`.
+pub fn clean_up_on_interrupt() {
+    let _ = ctrlc::set_handler(|| {
+        let staged = STAGED.lock().map(|v| v.clone()).unwrap_or_default();
+        for p in staged {
+            let _ = std::fs::remove_file(p);
+        }
+        eprintln!("error: interrupted; no output written");
+        std::process::exit(INTERRUPTED);
+    });
+}
 
 /// From now on, files read through [`read_input`] / [`note_input`] may not
 /// be written by [`write_atomic`] in this process. Off by default, so that
@@ -88,15 +110,31 @@ pub fn write_together(files: &[(&Path, &[u8])]) -> Result<()> {
         }
     }
     let mut staged = Vec::with_capacity(files.len());
-    for (path, bytes) in files {
-        staged.push((*path, stage(path, bytes)?));
+    let mut mine: Vec<PathBuf> = Vec::with_capacity(files.len());
+    let result = (|| {
+        for (path, bytes) in files {
+            let tmp = stage(path, bytes)?;
+            mine.push(tmp.path().to_path_buf());
+            if let Ok(mut v) = STAGED.lock() {
+                v.push(tmp.path().to_path_buf());
+            }
+            staged.push((*path, tmp));
+        }
+        // Held through the renames: an interrupt now waits for all of them.
+        let _renaming = STAGED.lock();
+        for (path, tmp) in staged.drain(..) {
+            tmp.persist(path)
+                .map_err(|e| e.error)
+                .with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        Ok(())
+    })();
+    // What was not renamed is removed as `staged` drops; forget it all.
+    drop(staged);
+    if let Ok(mut v) = STAGED.lock() {
+        v.retain(|p| !mine.contains(p));
     }
-    for (path, tmp) in staged {
-        tmp.persist(path)
-            .map_err(|e| e.error)
-            .with_context(|| format!("cannot write {}", path.display()))?;
-    }
-    Ok(())
+    result
 }
 
 /// The files of one command, gathered while it runs and written together

@@ -23,10 +23,19 @@ pub use script::Script;
 pub fn run(ctl: &mut dyn Controller, script: &Script, frames: usize) -> Result<Rollout> {
     let mut poses = Vec::with_capacity(frames);
     let mut commands = Vec::with_capacity(frames);
+    // Long runs (up to an hour of frames) show how far they are.
+    let bar = (frames >= LONG_RUN_FRAMES)
+        .then(|| exporter::progress::bar(frames as u64, "rollout", "frames"));
     for f in 0..frames {
         let c = script.command(f);
         poses.push(ctl.step(&c).with_context(|| format!("frame {f}"))?);
         commands.push(c);
+        if let Some(b) = bar.as_ref().filter(|_| f % 600 == 0) {
+            b.set_position(f as u64);
+        }
+    }
+    if let Some(b) = bar {
+        b.finish_and_clear();
     }
     Ok(Rollout {
         poses,
@@ -144,6 +153,9 @@ pub fn rollout_from_args(args: &RolloutArgs) -> Result<(Rollout, String)> {
         Ok((r, format!("{label} ({})", path.display())))
     }
 }
+
+/// Rollouts of at least this many frames (100 s) show a progress bar.
+pub const LONG_RUN_FRAMES: usize = 6000;
 
 /// Frames of a locomotion rollout when `--frames` is not given.
 pub const DEFAULT_FRAMES: usize = 600;
