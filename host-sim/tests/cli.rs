@@ -469,7 +469,7 @@ fn eval_and_compare_value_errors_name_the_file_and_the_row() {
 fn an_interrupted_run_leaves_no_output() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("hour.npz");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+    let child = Command::new(env!("CARGO_BIN_EXE_host-sim"))
         .args([
             "rollout",
             "--model",
