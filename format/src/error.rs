@@ -159,6 +159,26 @@ pub enum Error {
         /// Index of the node (`255` for the header).
         node: u8,
     },
+    /// The payload ends with the self-test footer (`PGST`), but the
+    /// section is not as it states: another self-test version, no vectors
+    /// or more than 1,024, dimensions other than the model's, or records
+    /// misaligned or not inside the payload before the footer.
+    #[cfg(feature = "self-test")]
+    SelfTestMalformed,
+    /// A stored self-test vector did not give its expected output: the
+    /// runtime on this device computes something else than the one that
+    /// wrote the blob.
+    #[cfg(feature = "self-test")]
+    SelfTestFailed {
+        /// Index of the vector (0-based, stored order).
+        vector: u16,
+        /// Index of the first output that differs.
+        output: u16,
+        /// The output stored in the blob.
+        expected: i16,
+        /// The output computed here.
+        got: i16,
+    },
 }
 
 /// Result with the runtime's [`Error`].
@@ -252,6 +272,20 @@ impl fmt::Display for Error {
             Error::RigIncompatible { node } => write!(
                 f,
                 "rig does not fit the motion blob at node {node} (op, gating or interface formats differ)"
+            ),
+            #[cfg(feature = "self-test")]
+            Error::SelfTestMalformed => f.write_str(
+                "the blob's self-test section is malformed (version, count, dimensions or records)",
+            ),
+            #[cfg(feature = "self-test")]
+            Error::SelfTestFailed {
+                vector,
+                output,
+                expected,
+                got,
+            } => write!(
+                f,
+                "self-test vector {vector} output {output}: expected {expected}, got {got}"
             ),
         }
     }

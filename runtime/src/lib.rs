@@ -46,3 +46,5 @@ pub use probe::{Mark, NoProbe, Probe};
 pub use rig::RigInfo;
 pub use runtime::Runtime;
 pub use style::{Mix, Style, StyleId};
+#[cfg(test)]
+mod self_test_tests;

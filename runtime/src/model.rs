@@ -36,6 +36,9 @@ pub struct Model<'a> {
     /// Bit `i` set: node `i`'s sections are in `payload` (the rig's nodes).
     #[cfg(feature = "rig")]
     own: u32,
+    /// The self-test section at the end of the payload, if there is one.
+    #[cfg(any(test, feature = "self-test"))]
+    self_test: Option<crate::blob::SelfTest<'a>>,
     blob_len: usize,
 }
 
@@ -62,16 +65,27 @@ impl<'a> Model<'a> {
         if !is_model(&header.kind) {
             return Err(Error::NotAModel);
         }
-        let model = Model {
+        #[allow(unused_mut)]
+        let mut model = Model {
             header,
             payload,
             #[cfg(feature = "rig")]
             base: payload,
             #[cfg(feature = "rig")]
             own: 0,
+            #[cfg(any(test, feature = "self-test"))]
+            self_test: None,
             blob_len,
         };
         model.validate()?;
+        #[cfg(any(test, feature = "self-test"))]
+        {
+            model.self_test = crate::blob::SelfTest::find(
+                payload,
+                model.header.input_dim,
+                model.header.output_dim,
+            )?;
+        }
         Ok(model)
     }
 
@@ -84,6 +98,9 @@ impl<'a> Model<'a> {
             payload: rig.payload,
             base: motion.payload,
             own: nodes,
+            // The motion blob's self-test is for the motion blob alone.
+            #[cfg(any(test, feature = "self-test"))]
+            self_test: None,
             blob_len: rig.blob_len,
         };
         model.validate()?;
@@ -112,6 +129,15 @@ impl<'a> Model<'a> {
     /// at once with [`Header::decoded`].
     pub fn header(&self) -> &Header<NodeTable<'a>> {
         &self.header
+    }
+
+    /// The blob's self-test section (`docs/blob-format.md`, "Self-test
+    /// section"), validated at load; `None` when the payload has none, and
+    /// for a motion blob combined with a rig (its self-test is the motion
+    /// blob's alone). Run it with [`crate::Runtime::run_self_test`].
+    #[cfg(any(test, feature = "self-test"))]
+    pub fn self_test(&self) -> Option<crate::blob::SelfTest<'a>> {
+        self.self_test
     }
 
     /// Bytes of the whole blob (of the rig blob, for a motion blob with a rig).

@@ -223,6 +223,51 @@ impl<'a, const A: usize, const S: usize, const N: usize> Runtime<'a, A, S, N> {
         self.output()
     }
 
+    /// Runs the model's stored self-test ([`Model::self_test`]): every
+    /// vector's quantised input at its phase through the base model (no
+    /// style, whatever the current mix, which is kept), each output
+    /// compared with the stored one. Returns how many vectors passed (0
+    /// when the blob has no self-test), or
+    /// [`Error::SelfTestFailed`] naming the first vector and output that
+    /// differ, with the stored and the computed value. Overwrites the
+    /// arena (as a frame does).
+    #[cfg(any(test, feature = "self-test"))]
+    pub fn run_self_test(&mut self) -> Result<u16> {
+        let Some(test) = self.model.self_test() else {
+            return Ok(0);
+        };
+        let base = Mix::Base.weights();
+        let mut passed = 0u16;
+        for (vector, v) in (0u16..).zip(test.vectors()) {
+            let dst = span_mut(&mut self.arena.0, self.model.header().input)?;
+            for (d, x) in dst.iter_mut().zip(v.inputs()) {
+                *d = x;
+            }
+            forward_graph(
+                &self.model,
+                &mut self.arena.0,
+                &self.styles,
+                &base,
+                &mut self.scratch,
+                Phase::from_bits(v.phase),
+                &mut NoProbe,
+            )?;
+            let got = self.output()?;
+            for ((output, &g), e) in (0u16..).zip(got).zip(v.expected()) {
+                if g != e {
+                    return Err(Error::SelfTestFailed {
+                        vector,
+                        output,
+                        expected: e,
+                        got: g,
+                    });
+                }
+            }
+            passed = vector.saturating_add(1);
+        }
+        Ok(passed)
+    }
+
     /// Float in, float out, with the current mix: quantises `input` (model
     /// units; counts the clipped values, see [`Runtime::clipped_inputs`]),
     /// runs the network, writes de-quantised outputs (model units) to `output`.

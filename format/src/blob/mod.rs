@@ -13,6 +13,8 @@
 mod framing;
 mod header;
 pub mod records;
+#[cfg(feature = "self-test")]
+pub mod self_test;
 
 pub use framing::{
     blob_len_from_prefix, crc32, header_from_prefix, Framed, FORMAT_VERSION, MAGIC, PAYLOAD_ALIGN,
@@ -26,4 +28,8 @@ pub use header::{
 pub use records::{
     RbfScale, Requant, MAX_OUTPUT_OFFSET, MAX_OUTPUT_SCALE, RBF_SCALE_RECORD_LEN,
     REQUANT_RECORD_LEN, STAGE_RECORD_LEN,
+};
+#[cfg(feature = "self-test")]
+pub use self_test::{
+    SelfTest, SELF_TEST_FOOTER_LEN, SELF_TEST_MAGIC, SELF_TEST_VERSION, MAX_SELF_TEST_VECTORS,
 };
