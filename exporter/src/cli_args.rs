@@ -110,6 +110,10 @@ pub mod bounds {
     /// Extra bytes of `--int16-budget` (a blob is at most 4 GiB).
     pub const BYTES: usize = 1 << 32;
 
+    /// Self-test vectors stored in a blob (`--self-test`; the format's
+    /// limit, `phasegate::blob::MAX_SELF_TEST_VECTORS`).
+    pub const SELF_TEST: usize = 1_024;
+
     /// Rows of a recorded data set (scripts and tours times frames):
     /// about 720 MB of f64 rows at the PFNN's 342 inputs.
     pub const ROWS: usize = 262_144;

@@ -47,6 +47,9 @@ pub struct ExportReport {
     /// given (`crate::cost`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub frame_budget: Option<crate::cost::BudgetCheck>,
+    /// The self-test section (`--self-test N`), when the blob has one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub self_test: Option<crate::self_test::SelfTestReport>,
 }
 
 /// JSON form of [`Residual`].
@@ -124,6 +127,7 @@ pub fn export(
         options: opts.clone(),
         int16_budget: None,
         frame_budget: None,
+        self_test: None,
     };
     Ok((blob, report))
 }

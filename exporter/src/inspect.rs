@@ -69,6 +69,13 @@ pub fn describe(model: &Model<'_>) -> String {
         model.arena_elements()
     );
     let _ = writeln!(s, "MACs per frame   {}", h.macs_per_frame);
+    if let Some(t) = model.self_test() {
+        let _ = writeln!(
+            s,
+            "self-test        {} vectors and their integer outputs (end of the payload; run at boot)",
+            t.count()
+        );
+    }
     let _ = writeln!(
         s,
         "input            arena @{}..{}, output {}",

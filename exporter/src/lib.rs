@@ -23,6 +23,7 @@ pub mod plan;
 pub mod progress;
 pub mod quantise;
 pub mod rig;
+pub mod self_test;
 pub mod style;
 
 // The modules' old paths, until their users move (docs/architecture.md).

@@ -139,6 +139,21 @@ struct OutputArgs {
     /// unchanged.
     #[arg(long, value_name = "N")]
     budget_instructions: Option<u64>,
+    #[command(flatten)]
+    self_test: SelfTestArgs,
+}
+
+/// `--self-test N` (docs/blob-format.md, "Self-test section").
+#[derive(clap::Args)]
+struct SelfTestArgs {
+    /// Store N input vectors and the integer outputs this runtime computes
+    /// for them in the blob (a section at the end of its payload, under the
+    /// payload CRC); the firmware runs them at boot and refuses the model
+    /// on any mismatch. 0 (the default): no section, the blob as without
+    /// the option.
+    #[arg(long = "self-test", value_name = "N", default_value_t = 0,
+          value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::SELF_TEST))]
+    vectors: usize,
 }
 
 /// The quantiser's default headroom.
@@ -373,6 +388,7 @@ fn export(
         }
     };
     let mut report = report;
+    let blob = exporter::self_test::apply(blob, &mut report, q.self_test.vectors)?;
     if let Some(n) = q.budget_instructions {
         let model = phasegate::Model::from_bytes(&blob)
             .map_err(|e| anyhow::anyhow!("the blob written does not load back: {e}"))?;
@@ -389,7 +405,10 @@ fn export(
     if std::io::stdout().is_terminal() || std::env::var_os("PHASEGATE_VERBOSE").is_some() {
         summary(&report, &q.blob.output);
     } else {
-        println!("{}: {} bytes", q.blob.output.display(), report.blob_bytes);
+        let with = report.self_test.as_ref().map_or(String::new(), |t| {
+            format!(" (a self-test of {} vectors, {} bytes)", t.vectors, t.bytes)
+        });
+        println!("{}: {} bytes{with}", q.blob.output.display(), report.blob_bytes);
     }
     Ok(())
 }
@@ -427,6 +446,12 @@ fn summary(r: &ExportReport, out: &Path) {
         "RAM {} bytes, {} MACs per frame",
         r.ram_bytes, r.macs_per_frame
     );
+    if let Some(t) = &r.self_test {
+        println!(
+            "self-test: {} vectors and their outputs, {} bytes at the end of the payload",
+            t.vectors, t.bytes
+        );
+    }
     for l in &r.layers {
         let blend = l.max_blend_bits.map_or(String::new(), |b| {
             format!(", worst blended accumulator 2^{b:.1}")

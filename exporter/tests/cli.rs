@@ -1223,6 +1223,27 @@ fn count_options_refuse_values_above_their_maximum() {
             "--compensation-samples",
             bounds::SAMPLES,
         ),
+        (
+            &["npz", "--weights", w, "--gating", "cubic"],
+            "--self-test",
+            bounds::SELF_TEST,
+        ),
+        (
+            &["cp", "--weights", w, "--cp-rank", "8"],
+            "--self-test",
+            bounds::SELF_TEST,
+        ),
+        (
+            &[
+                "omg",
+                "--weights",
+                "models/omg/tiny_fe_r1/model.safetensors",
+                "--config",
+                "models/omg/tiny_fe_r1/config.json",
+            ],
+            "--self-test",
+            bounds::SELF_TEST,
+        ),
     ];
     for (prefix, option, max) in cases {
         let too_many = (max + 1).to_string();
@@ -1242,5 +1263,98 @@ fn count_options_refuse_values_above_their_maximum() {
             "{args:?}: {first}"
         );
         assert!(!out.exists());
+    }
+}
+
+/// `--self-test N` on every command that writes a model blob: the blob is
+/// the one without it plus a section at the end of its payload (same
+/// header but for the payload's length and CRC), the section holds N
+/// vectors that pass on the host runtime, the report and `inspect` say
+/// so; `--self-test 0` is the blob without the option, byte for byte.
+#[test]
+fn self_test_is_stored_in_every_kind_of_model_blob() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let r = |p: &str| root.join(p).to_str().unwrap().to_string();
+    let tmp = tempfile::tempdir().unwrap();
+    let commands: Vec<(&str, Vec<String>)> = vec![
+        (
+            "npz",
+            vec![
+                "npz".into(),
+                "--weights".into(),
+                r("tests/golden/default/model.npz"),
+                "--gating".into(),
+                "cubic".into(),
+            ],
+        ),
+        (
+            "graph",
+            vec![
+                "graph".into(),
+                "--graph".into(),
+                r("tests/golden/softmax-graph/model.json"),
+                "--weights".into(),
+                r("tests/golden/softmax-graph/model.npz"),
+            ],
+        ),
+        (
+            "omg",
+            vec![
+                "omg".into(),
+                "--weights".into(),
+                r("models/omg/tiny_fe_r1/model.safetensors"),
+                "--config".into(),
+                r("models/omg/tiny_fe_r1/config.json"),
+            ],
+        ),
+        (
+            "cp",
+            vec![
+                "cp".into(),
+                "--weights".into(),
+                r("tests/golden/default/model.npz"),
+                "--cp-rank".into(),
+                "4".into(),
+                "--samples".into(),
+                "16".into(),
+            ],
+        ),
+    ];
+    for (name, args) in commands {
+        let run = |extra: &[&str], out: &Path, report: Option<&Path>| {
+            let mut a: Vec<&str> = args.iter().map(String::as_str).collect();
+            a.extend(extra);
+            a.extend(["-o", out.to_str().unwrap()]);
+            if let Some(rep) = report {
+                a.extend(["--report", rep.to_str().unwrap()]);
+            }
+            let o = exporter(&a);
+            assert!(o.status.success(), "{name}: {}", stderr(&o));
+            std::fs::read(out).unwrap()
+        };
+        let plain = run(&[], &tmp.path().join("plain.blob"), None);
+        let zero = run(&["--self-test", "0"], &tmp.path().join("zero.blob"), None);
+        assert_eq!(plain, zero, "{name}: --self-test 0 changes the blob");
+        let rep = tmp.path().join("t.json");
+        let with = run(&["--self-test", "5"], &tmp.path().join("t.blob"), Some(&rep));
+        let a = phasegate::Model::from_bytes(&plain).unwrap();
+        let b = phasegate::Model::from_bytes(&with).unwrap();
+        assert!(a.self_test().is_none(), "{name}");
+        assert_eq!(b.self_test().map(|t| t.count()), Some(5), "{name}");
+        assert!(b.payload().starts_with(a.payload()), "{name}");
+        assert_eq!(b.header().nodes.to_vec(), a.header().nodes.to_vec(), "{name}");
+        let mut rt: Box<phasegate::Runtime<'_, 16384>> =
+            Box::new(phasegate::Runtime::new(b).unwrap());
+        assert_eq!(rt.run_self_test(), Ok(5), "{name}");
+        let j = json(&rep);
+        let blob_report = if j.get("blob").is_some() { &j["blob"] } else { &j };
+        assert_eq!(blob_report["self_test"]["vectors"], 5, "{name}");
+        assert_eq!(blob_report["blob_bytes"], with.len(), "{name}");
+        let o = exporter(&["inspect", tmp.path().join("t.blob").to_str().unwrap()]);
+        let text = String::from_utf8_lossy(&o.stdout);
+        assert!(text.contains("self-test        5 vectors"), "{name}: {text}");
+        // A report without the option says nothing of a self-test.
+        run(&[], &tmp.path().join("p.blob"), Some(&rep));
+        assert!(json(&rep).to_string().find("self_test").is_none(), "{name}");
     }
 }

@@ -8,22 +8,28 @@
 //!    the `rig` feature (the reach build), if the STYLES region starts with
 //!    a rig blob (an OMG rig's autoencoder, bound to the motion blob in
 //!    MODEL by its payload CRC), the two run as one model
-//!    (`Model::with_rig_region`) and step 3 is skipped; a refused rig
+//!    (`Model::with_rig_region`) and step 4 is skipped; a refused rig
 //!    (built for another motion blob, incompatible, damaged) exits with
 //!    [`wire::exit::BAD_RIG`];
-//! 3. add every style blob flashed in the STYLES region (blobs back to
+//! 3. with the `self-test` feature (every QEMU build but the inference
+//!    core), if the blob has a self-test section, run its vectors through
+//!    the base model and compare every output; a mismatch is logged naming
+//!    the vector and output and exits with [`wire::exit::SELF_TEST_FAILED`]
+//!    (skipped, with a log line, when a rig is loaded: the section is the
+//!    motion blob's alone);
+//! 4. add every style blob flashed in the STYLES region (blobs back to
 //!    back at 16-byte aligned offsets, up to the first offset without the
 //!    blob magic) to the styled runtime; a refused style (damaged, built
 //!    for another base, incompatible, too big, bank full) is logged with
 //!    the runtime's typed error and exits with [`wire::exit::BAD_STYLE`];
-//! 4. if the host loaded an input image at the HOSTIO region, run every
+//! 5. if the host loaded an input image at the HOSTIO region, run every
 //!    frame (mix -> `set_mix`; phase in radians and f32 inputs -> quantise
 //!    -> integer inference with the frame's adapters -> de-quantise),
 //!    timing each with SysTick, and write the outputs and timings to
 //!    `phasegate-out.bin` through semihosting, and (except in the
 //!    controller build) each frame's SysTick ticks per stage (input, gate,
 //!    each node, output) to `phasegate-profile.bin`;
-//! 5. write the stack high-water mark and exit through semihosting.
+//! 6. write the stack high-water mark and exit through semihosting.
 //!
 //! Logs are defmt frames on semihosting stdout; `host-sim target` decodes
 //! them. The wire formats and exit codes are in the `phasegate-wire` crate
@@ -187,7 +193,13 @@ fn main() -> ! {
         model.blob_len(),
         model.header()
     );
+    #[cfg(feature = "self-test")]
+    let motion_test = model.self_test().is_some();
     let (model, rigged) = with_rig(model, styles_region);
+    #[cfg(feature = "self-test")]
+    if rigged && motion_test {
+        info!("self-test not run: it is the motion blob's alone, and a rig is loaded");
+    }
     let (input_dim, output_dim) = (model.input_dim(), model.output_dim());
     let rt = match init_runtime(model) {
         Ok(rt) => rt,
@@ -207,6 +219,8 @@ fn main() -> ! {
         N,
         rt.model().ram_bytes()
     );
+    #[cfg(feature = "self-test")]
+    run_self_test(rt);
     if !rigged {
         load_styles(rt, styles_region);
     }
@@ -693,6 +707,39 @@ fn run_locomotion(
 /// transient `Runtime` value lives in this short-lived frame rather
 /// than in `main`'s, which stays on the stack for the whole run.
 #[inline(never)]
+/// Boot step 3: the blob's self-test (`docs/blob-format.md`, "Self-test
+/// section"), before any style is added: every stored vector through the
+/// base model, compared with the outputs the exporter's runtime computed.
+/// Nothing is logged for a blob without one; a mismatch is logged naming
+/// the vector and output and exits with [`wire::exit::SELF_TEST_FAILED`]:
+/// the model is never run.
+#[cfg(feature = "self-test")]
+fn run_self_test(rt: &mut Rt) {
+    match rt.run_self_test() {
+        Ok(0) => {}
+        Ok(n) => info!("self-test: {=u16} vectors passed, bit for bit", n),
+        Err(phasegate::Error::SelfTestFailed {
+            vector,
+            output,
+            expected,
+            got,
+        }) => {
+            error!(
+                "self-test failed: vector {=u16} output {=u16}: expected {=i16}, got {=i16}; the model is refused",
+                vector,
+                output,
+                expected,
+                got
+            );
+            exit(wire::exit::SELF_TEST_FAILED);
+        }
+        Err(e) => {
+            error!("self-test could not run: {} ({})", e, Display2Format(&e));
+            exit(wire::exit::SELF_TEST_FAILED);
+        }
+    }
+}
+
 fn init_runtime(model: Model<'static>) -> Result<&'static mut Rt, phasegate::Error> {
     let rt = Rt::new(model)?;
     match RUNTIME.init(rt) {

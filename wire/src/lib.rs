@@ -970,6 +970,11 @@ pub mod exit {
     /// not fitting it (`RigIncompatible`), damaged, or too big for the
     /// firmware's buffers.
     pub const BAD_RIG: i32 = 11;
+    /// The model blob's self-test failed: a stored vector did not give its
+    /// stored output on this device (`Error::SelfTestFailed`, logged with
+    /// the vector and output index, expected and computed value), or could
+    /// not run. The model is never run.
+    pub const SELF_TEST_FAILED: i32 = 12;
 
     /// One line saying what an exit code means.
     pub fn describe(code: i32) -> &'static str {
@@ -986,6 +991,7 @@ pub mod exit {
             NO_CONTROLLER => "controller mode needs the firmware's `controller` feature",
             BAD_LAYOUT => "reaching layout or first frame refused",
             BAD_RIG => "rig blob refused",
+            SELF_TEST_FAILED => "the model blob's self-test failed on the device",
             _ => "unknown exit code",
         }
     }

@@ -119,7 +119,11 @@ pub struct CpArgs {
     pub report: Option<PathBuf>,
     /// Also write the float CP network (.npz, the `cp-import` layout).
     #[arg(long)]
-    pub factors_out: Option<PathBuf>,
+    pub factors_out: Option<PathBuf>,    /// Store N input vectors and the integer outputs this runtime computes
+    /// for them in the blob (as `exporter pfnn --self-test`; 0: none).
+    #[arg(long = "self-test", value_name = "N", default_value_t = 0,
+          value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::SELF_TEST))]
+    pub self_test: usize,
 }
 
 /// Per decomposed layer, in the `cp` report.
@@ -355,7 +359,9 @@ pub fn cp(args: &CpArgs) -> Result<()> {
         .map_err(anyhow::Error::msg)?,
         ..QuantOptions::default()
     };
-    let (blob, blob_report) = crate::progress::during("quantising", || export(&net, None, &opts))?;
+    let (blob, mut blob_report) =
+        crate::progress::during("quantising", || export(&net, None, &opts))?;
+    let blob = crate::self_test::apply(blob, &mut blob_report, args.self_test)?;
     let y_fixed = run_blob(&blob, &s.inputs, &s.phases)?;
     let mut rollout_sets = Vec::new();
     for (((name, e), yd), b) in sets.iter().zip(&sets_dense).zip(sets_before) {
@@ -535,6 +541,11 @@ pub struct CpImportArgs {
     /// Also write a JSON report.
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Store N input vectors and the integer outputs this runtime computes
+    /// for them in the blob (as `exporter pfnn --self-test`; 0: none).
+    #[arg(long = "self-test", value_name = "N", default_value_t = 0,
+          value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::SELF_TEST))]
+    pub self_test: usize,
 }
 
 /// Runs `exporter cp-import`.
@@ -544,7 +555,8 @@ pub fn cp_import(args: &CpImportArgs) -> Result<()> {
         weights: args.weight_bits,
         ..QuantOptions::default()
     };
-    let (blob, report) = export(&net, None, &opts)?;
+    let (blob, mut report) = export(&net, None, &opts)?;
+    let blob = crate::self_test::apply(blob, &mut report, args.self_test)?;
     write_both(&blob, &report, &args.output, args.report.as_deref())?;
     println!(
         "wrote {} ({} bytes, {} MACs/frame; layers: {})",
