@@ -408,7 +408,11 @@ fn export(
         let with = report.self_test.as_ref().map_or(String::new(), |t| {
             format!(" (a self-test of {} vectors, {} bytes)", t.vectors, t.bytes)
         });
-        println!("{}: {} bytes{with}", q.blob.output.display(), report.blob_bytes);
+        println!(
+            "{}: {} bytes{with}",
+            q.blob.output.display(),
+            report.blob_bytes
+        );
     }
     Ok(())
 }

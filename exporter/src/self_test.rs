@@ -77,8 +77,8 @@ pub fn with_self_test(blob: &[u8], n: usize) -> Result<(Vec<u8>, Option<SelfTest
         n <= MAX_VECTORS,
         "--self-test {n}: a blob holds at most {MAX_VECTORS} self-test vectors"
     );
-    let model = Model::from_bytes(blob)
-        .map_err(|e| anyhow::anyhow!("the blob does not load: {e}"))?;
+    let model =
+        Model::from_bytes(blob).map_err(|e| anyhow::anyhow!("the blob does not load: {e}"))?;
     if model.self_test().is_some() {
         bail!("the blob has a self-test section already");
     }
@@ -86,9 +86,8 @@ pub fn with_self_test(blob: &[u8], n: usize) -> Result<(Vec<u8>, Option<SelfTest
     let mut payload = model.payload().to_vec();
     payload.resize(payload.len().next_multiple_of(4), 0);
     let start = u32::try_from(payload.len()).context("payload over 4 GiB")?;
-    let mut rt: Box<Runtime<'_, ARENA>> = Box::new(
-        Runtime::new(model.clone()).map_err(|e| anyhow::anyhow!("host runtime: {e}"))?,
-    );
+    let mut rt: Box<Runtime<'_, ARENA>> =
+        Box::new(Runtime::new(model.clone()).map_err(|e| anyhow::anyhow!("host runtime: {e}"))?);
     for (phase, x) in vectors(ins, n) {
         let y = rt
             .run_quantised(Phase::from_bits(phase), &x)
@@ -109,16 +108,17 @@ pub fn with_self_test(blob: &[u8], n: usize) -> Result<(Vec<u8>, Option<SelfTest
     let added = payload.len() - model.payload().len();
     let out = reseal(blob, &payload)?;
     {
-        let check = Model::from_bytes(&out).map_err(|e| {
-            anyhow::anyhow!("the blob with its self-test does not load back: {e}")
-        })?;
-        let mut rt: Box<Runtime<'_, ARENA>> = Box::new(
-            Runtime::new(check).map_err(|e| anyhow::anyhow!("host runtime: {e}"))?,
-        );
+        let check = Model::from_bytes(&out)
+            .map_err(|e| anyhow::anyhow!("the blob with its self-test does not load back: {e}"))?;
+        let mut rt: Box<Runtime<'_, ARENA>> =
+            Box::new(Runtime::new(check).map_err(|e| anyhow::anyhow!("host runtime: {e}"))?);
         let passed = rt
             .run_self_test()
             .map_err(|e| anyhow::anyhow!("the blob's own self-test fails on the host: {e}"))?;
-        ensure!(usize::from(passed) == n, "{passed} of {n} self-test vectors ran");
+        ensure!(
+            usize::from(passed) == n,
+            "{passed} of {n} self-test vectors ran"
+        );
     }
     Ok((
         out,
@@ -133,11 +133,7 @@ pub fn with_self_test(blob: &[u8], n: usize) -> Result<(Vec<u8>, Option<SelfTest
 /// [`with_self_test`] on an exported blob and its report (`blob_bytes`
 /// and `self_test` set when `n > 0`): what every command that writes a
 /// model blob does with `--self-test N`.
-pub fn apply(
-    blob: Vec<u8>,
-    report: &mut crate::export::ExportReport,
-    n: usize,
-) -> Result<Vec<u8>> {
+pub fn apply(blob: Vec<u8>, report: &mut crate::export::ExportReport, n: usize) -> Result<Vec<u8>> {
     if n == 0 {
         return Ok(blob);
     }
@@ -241,10 +237,16 @@ mod tests {
     #[test]
     fn inputs_are_normal_in_the_default_input_format() {
         let v = vectors(342, 64);
-        let all: Vec<f64> = v.iter().flat_map(|(_, x)| x.iter().map(|&q| f64::from(q))).collect();
+        let all: Vec<f64> = v
+            .iter()
+            .flat_map(|(_, x)| x.iter().map(|&q| f64::from(q)))
+            .collect();
         let mean = all.iter().sum::<f64>() / all.len() as f64;
         let sd = (all.iter().map(|q| (q - mean).powi(2)).sum::<f64>() / all.len() as f64).sqrt();
-        assert!(mean.abs() < 60.0 && (sd - INPUT_STD).abs() < 100.0, "{mean} {sd}");
+        assert!(
+            mean.abs() < 60.0 && (sd - INPUT_STD).abs() < 100.0,
+            "{mean} {sd}"
+        );
         assert_eq!(vectors(342, 64), v);
     }
 }

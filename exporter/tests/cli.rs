@@ -1336,23 +1336,38 @@ fn self_test_is_stored_in_every_kind_of_model_blob() {
         let zero = run(&["--self-test", "0"], &tmp.path().join("zero.blob"), None);
         assert_eq!(plain, zero, "{name}: --self-test 0 changes the blob");
         let rep = tmp.path().join("t.json");
-        let with = run(&["--self-test", "5"], &tmp.path().join("t.blob"), Some(&rep));
+        let with = run(
+            &["--self-test", "5"],
+            &tmp.path().join("t.blob"),
+            Some(&rep),
+        );
         let a = phasegate::Model::from_bytes(&plain).unwrap();
         let b = phasegate::Model::from_bytes(&with).unwrap();
         assert!(a.self_test().is_none(), "{name}");
         assert_eq!(b.self_test().map(|t| t.count()), Some(5), "{name}");
         assert!(b.payload().starts_with(a.payload()), "{name}");
-        assert_eq!(b.header().nodes.to_vec(), a.header().nodes.to_vec(), "{name}");
+        assert_eq!(
+            b.header().nodes.to_vec(),
+            a.header().nodes.to_vec(),
+            "{name}"
+        );
         let mut rt: Box<phasegate::Runtime<'_, 16384>> =
             Box::new(phasegate::Runtime::new(b).unwrap());
         assert_eq!(rt.run_self_test(), Ok(5), "{name}");
         let j = json(&rep);
-        let blob_report = if j.get("blob").is_some() { &j["blob"] } else { &j };
+        let blob_report = if j.get("blob").is_some() {
+            &j["blob"]
+        } else {
+            &j
+        };
         assert_eq!(blob_report["self_test"]["vectors"], 5, "{name}");
         assert_eq!(blob_report["blob_bytes"], with.len(), "{name}");
         let o = exporter(&["inspect", tmp.path().join("t.blob").to_str().unwrap()]);
         let text = String::from_utf8_lossy(&o.stdout);
-        assert!(text.contains("self-test        5 vectors"), "{name}: {text}");
+        assert!(
+            text.contains("self-test        5 vectors"),
+            "{name}: {text}"
+        );
         // A report without the option says nothing of a self-test.
         run(&[], &tmp.path().join("p.blob"), Some(&rep));
         assert!(json(&rep).to_string().find("self_test").is_none(), "{name}");

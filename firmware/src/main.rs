@@ -715,9 +715,15 @@ fn run_locomotion(
 /// the model is never run.
 #[cfg(feature = "self-test")]
 fn run_self_test(rt: &mut Rt) {
-    match rt.run_self_test() {
+    let t0 = measure::now();
+    let result = rt.run_self_test();
+    let ticks = measure::elapsed(t0, measure::now());
+    match result {
         Ok(0) => {}
-        Ok(n) => info!("self-test: {=u16} vectors passed, bit for bit", n),
+        Ok(n) => info!(
+            "self-test: {=u16} vectors passed, bit for bit ({=u32} SysTick ticks)",
+            n, ticks
+        ),
         Err(phasegate::Error::SelfTestFailed {
             vector,
             output,

@@ -215,6 +215,16 @@ enum Command {
         /// TRM's cycle counts (docs/performance.md).
         #[arg(long, conflicts_with = "controller")]
         cycles: bool,
+        /// Also check the firmware's boot self-test with N vectors, both
+        /// ways: the blob with a self-test of N vectors (`exporter
+        /// --self-test N`; the blob's own if it has one) must pass at boot
+        /// and run its frames as without it, and a copy with one stored
+        /// output changed (CRC re-sealed) must be refused with exit code 12
+        /// and a log line naming the vector and output.
+        #[arg(long = "self-test", value_name = "N",
+              conflicts_with_all = ["rig", "controller", "reach"],
+              value_parser = exporter::cli_args::bounds::at_most(exporter::cli_args::bounds::SELF_TEST))]
+        self_test: Option<usize>,
         /// Run the locomotion controller on the firmware instead of raw
         /// network frames: a rollout script (idle, walk, circle-left, zigzag,
         /// jog-stop-jog, crouch-walk, or a JSON file) gives each frame's
@@ -525,6 +535,7 @@ fn run(cli: Cli) -> Result<()> {
             rig,
             mix,
             cycles,
+            self_test,
             controller,
             budget_instructions,
             overrun_policy,
@@ -582,6 +593,7 @@ fn run(cli: Cli) -> Result<()> {
                 rig,
                 mix,
                 cycles,
+                self_test,
             })?;
             host_sim::target::bars::check(&bars, &report)
         }

@@ -3,8 +3,7 @@
 //! payload CRC re-sealed), malformed sections, and blobs without one.
 
 use crate::blob::{
-    crc32, Framed, Header, SELF_TEST_MAGIC, SELF_TEST_VERSION, FORMAT_VERSION, MAGIC,
-    PAYLOAD_ALIGN,
+    crc32, Framed, Header, FORMAT_VERSION, MAGIC, PAYLOAD_ALIGN, SELF_TEST_MAGIC, SELF_TEST_VERSION,
 };
 use crate::{Error, Model, Phase, Runtime};
 
@@ -57,13 +56,18 @@ fn with_section(blob: &[u8], n: u16) -> (Vec<u8>, usize) {
     let mut rt: Box<Runtime<'_, 4096>> = Box::new(Runtime::new(model).unwrap());
     let mut seed = 0x9e37_79b9_7f4a_7c15u64;
     let mut next = move || {
-        seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (seed >> 32) as u32
     };
     for _ in 0..n {
         let phase = next();
         let x: Vec<i16> = (0..ins).map(|_| (next() as i16) >> 3).collect();
-        let y = rt.run_quantised(Phase::from_bits(phase), &x).unwrap().to_vec();
+        let y = rt
+            .run_quantised(Phase::from_bits(phase), &x)
+            .unwrap()
+            .to_vec();
         assert_eq!(y.len(), outs);
         payload.extend_from_slice(&phase.to_le_bytes());
         for v in x.iter().chain(&y) {
@@ -106,7 +110,11 @@ fn stored_vectors_pass_on_the_runtime_that_computed_them() {
         let mut region = sealed.clone();
         region.extend_from_slice(&[0xFF; 64]);
         assert_eq!(
-            Model::from_region(&region).unwrap().self_test().unwrap().count(),
+            Model::from_region(&region)
+                .unwrap()
+                .self_test()
+                .unwrap()
+                .count(),
             n
         );
         // The section changes no output of a frame.
@@ -114,7 +122,10 @@ fn stored_vectors_pass_on_the_runtime_that_computed_them() {
         let mut a: Box<Runtime<'_, 4096>> = Box::new(Runtime::new(plain).unwrap());
         let mut b: Box<Runtime<'_, 4096>> = Box::new(Runtime::new(model).unwrap());
         let x = vec![123i16; a.model().input_dim()];
-        let ya = a.run_quantised(Phase::from_bits(7 << 28), &x).unwrap().to_vec();
+        let ya = a
+            .run_quantised(Phase::from_bits(7 << 28), &x)
+            .unwrap()
+            .to_vec();
         assert_eq!(b.run_quantised(Phase::from_bits(7 << 28), &x).unwrap(), ya);
     }
 }
@@ -154,7 +165,14 @@ fn a_changed_input_fails_too() {
     payload[at] ^= 0x40;
     let r = run(&reseal(EXAMPLE, &payload));
     assert!(
-        matches!(r, Err(Error::SelfTestFailed { vector: 2, output: 0, .. })),
+        matches!(
+            r,
+            Err(Error::SelfTestFailed {
+                vector: 2,
+                output: 0,
+                ..
+            })
+        ),
         "{r:?}"
     );
 }
@@ -164,7 +182,12 @@ fn a_flipped_byte_is_a_crc_refusal_not_a_self_test_failure() {
     let (payload, start) = with_section(EXAMPLE, 3);
     let sealed = reseal(EXAMPLE, &payload);
     let p = sealed.len() - payload.len();
-    for at in [p + start, p + start + 12, sealed.len() - 1, sealed.len() - 16] {
+    for at in [
+        p + start,
+        p + start + 12,
+        sealed.len() - 1,
+        sealed.len() - 16,
+    ] {
         let mut damaged = sealed.clone();
         damaged[at] ^= 1;
         assert_eq!(
@@ -189,7 +212,11 @@ fn malformed_sections_are_refused_at_load() {
     assert_eq!(edit(8, &312u16.to_le_bytes()), bad, "output_dim");
     assert_eq!(edit(10, &9u16.to_le_bytes()), bad, "version");
     assert_eq!(edit(4, &0u16.to_le_bytes()), bad, "no vectors");
-    assert_eq!(edit(4, &3u16.to_le_bytes()), bad, "more vectors than stored");
+    assert_eq!(
+        edit(4, &3u16.to_le_bytes()),
+        bad,
+        "more vectors than stored"
+    );
     assert_eq!(edit(0, &2u32.to_le_bytes()), bad, "misaligned");
     assert_eq!(edit(0, &(u32::MAX - 3).to_le_bytes()), bad, "overflow");
     // A footer with nothing before it.

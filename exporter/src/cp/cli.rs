@@ -119,7 +119,8 @@ pub struct CpArgs {
     pub report: Option<PathBuf>,
     /// Also write the float CP network (.npz, the `cp-import` layout).
     #[arg(long)]
-    pub factors_out: Option<PathBuf>,    /// Store N input vectors and the integer outputs this runtime computes
+    pub factors_out: Option<PathBuf>,
+    /// Store N input vectors and the integer outputs this runtime computes
     /// for them in the blob (as `exporter pfnn --self-test`; 0: none).
     #[arg(long = "self-test", value_name = "N", default_value_t = 0,
           value_parser = crate::cli_args::bounds::at_most(crate::cli_args::bounds::SELF_TEST))]

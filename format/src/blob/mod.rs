@@ -31,5 +31,5 @@ pub use records::{
 };
 #[cfg(feature = "self-test")]
 pub use self_test::{
-    SelfTest, SELF_TEST_FOOTER_LEN, SELF_TEST_MAGIC, SELF_TEST_VERSION, MAX_SELF_TEST_VECTORS,
+    SelfTest, MAX_SELF_TEST_VECTORS, SELF_TEST_FOOTER_LEN, SELF_TEST_MAGIC, SELF_TEST_VERSION,
 };

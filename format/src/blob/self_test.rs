@@ -97,9 +97,8 @@ impl<'a> SelfTest<'a> {
         if footer.get(12..16) != Some(&SELF_TEST_MAGIC[..]) {
             return Ok(None);
         }
-        let u16_at = |at: usize| -> Option<u16> {
-            Some(u16::from_le_bytes(le16(footer.get(at..)?)?))
-        };
+        let u16_at =
+            |at: usize| -> Option<u16> { Some(u16::from_le_bytes(le16(footer.get(at..)?)?)) };
         let bad = Error::SelfTestMalformed;
         let start: [u8; 4] = footer
             .get(0..4)
@@ -223,7 +222,11 @@ mod tests {
         };
         assert_eq!(edit(10, &2u16.to_le_bytes()), bad, "version");
         assert_eq!(edit(4, &0u16.to_le_bytes()), bad, "no vectors");
-        assert_eq!(edit(4, &4u16.to_le_bytes()), bad, "records run into the footer");
+        assert_eq!(
+            edit(4, &4u16.to_le_bytes()),
+            bad,
+            "records run into the footer"
+        );
         assert_eq!(edit(4, &1025u16.to_le_bytes()), bad, "above the maximum");
         assert_eq!(edit(4, &u16::MAX.to_le_bytes()), bad);
         assert_eq!(edit(0, &42u32.to_le_bytes()), bad, "misaligned");

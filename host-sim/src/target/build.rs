@@ -94,9 +94,10 @@ pub fn cargo_build_bin(
     })
 }
 
-/// Builds the firmware if needed (cargo decides) and returns its ELF path.
+/// Builds the firmware (with its boot self-test, the `self-test` feature)
+/// if needed (cargo decides) and returns its ELF path.
 pub fn build_firmware() -> Result<PathBuf> {
-    build_checked(BIN, &[], None)
+    build_checked(BIN, &["self-test"], None)
 }
 
 /// Builds the inference core (beside the firmware, in `firmware/target`)

@@ -28,7 +28,7 @@
 //! [`qemu`] and [`run`] (booting, outputs, the host's side), [`log`]
 //! (defmt), [`report`] (figures and budgets), [`cycles`] (cycle estimates), [`snapshot`] (log
 //! snapshots), [`controller`] (controller mode), [`synthetic`] (test
-//! models).
+//! models), [`self_test`] (the boot self-test, passing and corrupted).
 
 pub mod bars;
 pub mod build;
@@ -42,6 +42,7 @@ pub mod qemu;
 pub mod reach;
 pub mod report;
 pub mod run;
+pub mod self_test;
 pub mod snapshot;
 pub mod styles;
 pub mod synthetic;
@@ -91,6 +92,9 @@ pub struct TargetArgs {
     pub mix: Option<MixSpec>,
     /// Also estimate Cortex-M4 cycles from an execution trace ([`cycles`]).
     pub cycles: bool,
+    /// Also check the boot self-test both ways with this many vectors
+    /// ([`self_test`]): passing, and corrupted.
+    pub self_test: Option<usize>,
 }
 
 pub(crate) use report::{check_calibration, memory_lines, memory_use};

@@ -220,6 +220,8 @@ pub struct TargetReport {
     pub wall: Duration,
     /// Cortex-M4 cycle estimate from an execution trace (`--cycles`).
     pub cycles: Option<super::cycles::CycleReport>,
+    /// The boot self-test, passing and corrupted (`--self-test N`).
+    pub self_test: Option<super::self_test::SelfTestCheck>,
 }
 
 impl TargetReport {
@@ -310,6 +312,9 @@ impl TargetReport {
             self.model_region.0,
             self.model_ram_bytes
         );
+        if let Some(t) = &self.self_test {
+            s.push_str(&t.render());
+        }
         if let Some(r) = &self.rig {
             let _ = writeln!(
                 s,

@@ -415,6 +415,39 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
     let out = parse_outputs(file, frames.len(), output_dim, input_crc)?;
     let t = out.trailer;
     check_calibration(&t)?;
+    // A blob with a self-test section (and no rig: the section is the
+    // motion blob's alone) must have passed it at boot.
+    if let (Some(n), None) = (
+        Model::from_bytes(&blob).ok().and_then(|m| m.self_test()),
+        &rig,
+    ) {
+        let line = format!("self-test: {} vectors passed", n.count());
+        ensure!(
+            booted.log.iter().any(|l| l.contains(&line)),
+            "the blob has a self-test of {} vectors, but the firmware did not log {line:?}",
+            n.count()
+        );
+    }
+    let self_test = match args.self_test {
+        None => None,
+        Some(n) => {
+            ensure!(
+                rig.is_none(),
+                "--self-test checks a model blob alone, not a rig pair"
+            );
+            eprintln!("checking the boot self-test under QEMU, passing and corrupted ...");
+            Some(super::self_test::check(
+                &elf,
+                &elf_path,
+                &blob,
+                n,
+                &image,
+                (&out.q, &out.f),
+                |file| parse_outputs(file, frames.len(), output_dim, input_crc).map(|o| (o.q, o.f)),
+                time_limit(frames.len(), u32::try_from(max_macs).unwrap_or(u32::MAX)),
+            )?)
+        }
+    };
     // A firmware that writes no profile (an older build) just gives no
     // per-stage table.
     let stages = match booted.run.profile_file.as_deref() {
@@ -495,6 +528,7 @@ pub fn execute(args: &TargetArgs) -> Result<TargetReport> {
         log: booted.log,
         wall: booted.run.wall,
         cycles,
+        self_test,
     })
 }
 

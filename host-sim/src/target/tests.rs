@@ -328,6 +328,7 @@ fn stats_are_min_median_max() {
 #[test]
 fn budgets_bite() {
     let mut r = TargetReport {
+        self_test: None,
         model: PathBuf::new(),
         blob_len: 0,
         model_region: ("MODEL", 0),
@@ -478,6 +479,90 @@ fn firmware_matches_the_golden_vectors_and_budgets() {
     assert!(report.bit_exact());
     assert_eq!(report.golden_mismatches, Some(0));
     report.check_budgets().unwrap();
+}
+
+/// The boot self-test under QEMU (issue 38, point 6), both ways: the
+/// golden softmax graph with 6 vectors passes at boot and runs its frames
+/// as without the section; a copy with one stored output changed and the
+/// CRC re-sealed loads but is refused with `SELF_TEST_FAILED` and a log
+/// line naming the vector and output; a blob exported with a self-test
+/// passes it in the main run, and a malformed section is a load refusal
+/// (`BAD_MODEL`, `SelfTestMalformed`), not a self-test failure.
+#[test]
+fn the_boot_self_test_passes_and_a_corrupted_one_is_refused() {
+    let name = "the_boot_self_test_passes_and_a_corrupted_one_is_refused";
+    if !qemu_or_skip(name) {
+        return;
+    }
+    let golden = repo_root().join("tests/golden/softmax-graph/model.blob");
+    let report = execute(&TargetArgs {
+        model: golden.clone(),
+        frames: Some(4),
+        self_test: Some(6),
+        ..TargetArgs::default()
+    })
+    .unwrap();
+    println!("{}", report.render());
+    assert!(report.bit_exact());
+    let t = report.self_test.clone().unwrap();
+    assert_eq!(t.vectors, 6);
+    assert!(t.instructions > 0);
+    assert_eq!(t.corrupted_exit, wire::exit::SELF_TEST_FAILED);
+    assert!(
+        t.failed_line.contains("self-test failed: vector 3 output"),
+        "{}",
+        t.failed_line
+    );
+    // The main run of a blob that carries a self-test runs it.
+    let blob = std::fs::read(&golden).unwrap();
+    let (with, _) = exporter::self_test::with_self_test(&blob, 3).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("with.blob");
+    std::fs::write(&path, &with).unwrap();
+    let report = execute(&TargetArgs {
+        model: path.clone(),
+        frames: Some(2),
+        ..TargetArgs::default()
+    })
+    .unwrap();
+    assert!(
+        report
+            .log
+            .iter()
+            .any(|l| l.contains("self-test: 3 vectors passed")),
+        "{:?}",
+        report.log
+    );
+    // A malformed section (the footer's input width changed, re-sealed).
+    let m = phasegate::Model::from_bytes(&with).unwrap();
+    let mut p = m.payload().to_vec();
+    let n = p.len();
+    p[n - 10] ^= 1;
+    let bad = exporter::self_test::reseal(&with, &p).unwrap();
+    let path = dir.path().join("malformed.blob");
+    std::fs::write(&path, &bad).unwrap();
+    let elf_path = build_firmware().unwrap();
+    let elf = ElfInfo::read(&elf_path).unwrap();
+    let booted = boot(
+        &elf,
+        &elf_path,
+        Some(&path),
+        None,
+        None,
+        std::time::Duration::from_secs(60),
+    )
+    .unwrap();
+    assert_eq!(
+        booted.run.exit_code,
+        wire::exit::BAD_MODEL,
+        "{:?}",
+        booted.log
+    );
+    assert!(
+        booted.log.iter().any(|l| l.contains("SelfTestMalformed")),
+        "{:?}",
+        booted.log
+    );
 }
 
 /// Must-fail case 1: a model whose widest layer (600) exceeds the
@@ -1538,6 +1623,7 @@ fn cost_estimate_tracks_qemu() {
             rig: None,
             mix: None,
             cycles: false,
+            self_test: None,
         })
         .unwrap();
         let bytes = std::fs::read(&blob).unwrap();
