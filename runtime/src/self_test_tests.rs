@@ -250,3 +250,29 @@ fn the_golden_blobs_do_not_end_with_the_footer_magic() {
         assert!(m.self_test().is_none());
     }
 }
+
+#[test]
+fn the_documented_example_section_loads_and_passes() {
+    // docs/blob-format.md, "Self-test section", "Example".
+    let mut payload = Model::from_bytes(EXAMPLE).unwrap().payload().to_vec();
+    assert_eq!(payload.len(), 40);
+    let section = [
+        0x00, 0x00, 0x00, 0x00, 0x80, 0x01, 0x60, 0xff, 0x77, 0x0e, 0x00,
+        0x00, // record, padding
+        0x28, 0x00, 0x00, 0x00, 0x01, 0x00, 0x02, 0x00, 0x01, 0x00, 0x01, 0x00, // footer
+        0x50, 0x47, 0x53, 0x54,
+    ];
+    payload.extend_from_slice(&section);
+    assert_eq!(payload.len(), 68);
+    assert_eq!(run(&reseal(EXAMPLE, &payload)), Ok(1));
+    payload[48] = 0x78;
+    assert_eq!(
+        run(&reseal(EXAMPLE, &payload)),
+        Err(Error::SelfTestFailed {
+            vector: 0,
+            output: 0,
+            expected: 3704,
+            got: 3703
+        })
+    );
+}

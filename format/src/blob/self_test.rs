@@ -115,7 +115,7 @@ impl<'a> SelfTest<'a> {
             || count > MAX_SELF_TEST_VECTORS
             || ins != input_dim
             || outs != output_dim
-            || start % 4 != 0
+            || !start.is_multiple_of(4)
         {
             return Err(bad);
         }
@@ -159,6 +159,7 @@ impl<'a> SelfTest<'a> {
 }
 
 #[cfg(test)]
+#[allow(clippy::arithmetic_side_effects)]
 mod tests {
     use super::*;
 

@@ -149,13 +149,27 @@ pub fn check(
     );
     Ok(SelfTestCheck {
         vectors,
-        section_bytes: tested.len() - blob.len(),
+        section_bytes: section_bytes(&model),
         instructions: ticks * INSTRUCTIONS_PER_TICK,
         passed_line,
         corrupted,
         corrupted_exit,
         failed_line,
     })
+}
+
+/// Bytes of `model`'s self-test section: from the first record to the
+/// end of the payload (footer included).
+fn section_bytes(model: &Model<'_>) -> usize {
+    let p = model.payload();
+    let at = p
+        .len()
+        .saturating_sub(phasegate::blob::SELF_TEST_FOOTER_LEN);
+    p.get(at..at + 4)
+        .and_then(|b| b.try_into().ok())
+        .map_or(0, |b| {
+            p.len().saturating_sub(u32::from_le_bytes(b) as usize)
+        })
 }
 
 impl SelfTestCheck {
