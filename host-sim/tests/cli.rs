@@ -313,6 +313,7 @@ fn count_options_refuse_values_above_their_maximum() {
         ("omg-reach", "--train-clips", bounds::RUNS),
         ("omg-reach", "--noise-seeds", bounds::RUNS),
         ("target", "--frames", bounds::FRAMES),
+        ("target", "--self-test", bounds::SELF_TEST),
         ("rollout", "--frames", bounds::FRAMES),
         ("rollout-compare", "--every", bounds::FRAMES),
         ("rollout-dataset", "--clips", bounds::RUNS),
