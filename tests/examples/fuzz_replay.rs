@@ -15,10 +15,14 @@ fn main() {
     let run: fn(&[u8]) -> usize = match target.as_str() {
         "model" => fuzz::exercise_model,
         "styled" => fuzz::exercise_styled,
+        "rig" => fuzz::exercise_rig,
         "controller" => fuzz::exercise_controller,
+        "reach" => fuzz::exercise_reach,
         "weights" => fuzz::exercise_weights,
         "configs" => fuzz::exercise_configs,
         "pfnn_dir" => fuzz::exercise_pfnn_dir,
+        "omg_model" => fuzz::exercise_omg_model,
+        "self_test" => fuzz::exercise_self_test,
         other => panic!("unknown target {other}"),
     };
     let mut files: Vec<PathBuf> = Vec::new();

@@ -844,6 +844,214 @@ pub fn exercise_pfnn_dir(bytes: &[u8]) -> usize {
 }
 
 // ---------------------------------------------------------------------------
+// OMG model directories.
+
+/// The committed tiny FE-OMG's files: `(model.safetensors, config.json)`.
+pub fn omg_files() -> &'static (Vec<u8>, String) {
+    static F: OnceLock<(Vec<u8>, String)> = OnceLock::new();
+    F.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/omg/tiny_fe_r1");
+        let w = std::fs::read(dir.join("model.safetensors")).expect("the committed OMG weights");
+        let c = std::fs::read_to_string(dir.join("config.json")).expect("the committed OMG config");
+        (w, c)
+    })
+}
+
+/// Packs an OMG model directory for the `omg_model` target: mode byte 1,
+/// the config's length (u32 LE), the config, the weights.
+pub fn pack_omg(config: &str, weights: &[u8]) -> Vec<u8> {
+    let mut out = vec![1u8];
+    out.extend((config.len() as u32).to_le_bytes());
+    out.extend(config.as_bytes());
+    out.extend(weights);
+    out
+}
+
+/// Weight files the `omg_model` target exports and runs as blobs (bytes;
+/// larger ones only run the f64 forward, so that one input stays fast).
+const OMG_EXPORT_MAX_BYTES: usize = 1 << 20;
+
+/// The `omg_model` target: an OMG model directory (`config.json` and
+/// `model.safetensors`) read by the exporter (`omg_from_bytes`, and
+/// `read_omg` from the files, which must agree). Mode byte bit 0 clear:
+/// the rest is the config, with the committed tiny FE-OMG's weights; set:
+/// [`pack_omg`]'s layout, both files from the input. What builds runs one
+/// f64 frame; with bit 1 set, a small one is also exported as an int8 and
+/// an int16 blob, which must load and run every extreme input.
+pub fn exercise_omg_model(bytes: &[u8]) -> usize {
+    let Some((&mode, rest)) = bytes.split_first() else {
+        return 0;
+    };
+    let (config, weights): (&[u8], &[u8]) = if mode % 2 == 0 {
+        (rest, &omg_files().0)
+    } else {
+        let Some((len, rest)) = rest.split_first_chunk::<4>() else {
+            return 0;
+        };
+        rest.split_at((u32::from_le_bytes(*len) as usize).min(rest.len()))
+    };
+    let mut ok = 0;
+    let from_files = exporter::net::omg::read_omg(&write("m.safetensors", weights), &write("config.json", config));
+    let Ok(text) = std::str::from_utf8(config) else {
+        assert!(from_files.is_err(), "a config that is not UTF-8 is refused");
+        return 0;
+    };
+    let from_bytes = exporter::net::omg::omg_from_bytes(weights, text);
+    assert_eq!(
+        from_files.is_ok(),
+        from_bytes.is_ok(),
+        "the files and the bytes are read alike: {:?} / {:?}",
+        from_files.err(),
+        from_bytes.as_ref().err()
+    );
+    let Ok(omg) = from_bytes else {
+        return 0;
+    };
+    ok += 1;
+    let export = mode & 2 != 0 && weights.len() <= OMG_EXPORT_MAX_BYTES;
+    let x = vec![0.25; omg.config.model_width];
+    let y = match omg.dof {
+        None => omg.step(&x),
+        Some(_) => omg.output(&x),
+    };
+    assert!(!y.is_empty());
+    if export {
+        for format in [phasegate::blob::WeightFormat::I8, phasegate::blob::WeightFormat::I16] {
+            let opts = exporter::quantise::QuantOptions {
+                weights: format,
+                calibration_samples: 16,
+                ..exporter::quantise::QuantOptions::default()
+            };
+            if let Ok((blob, _)) = exporter::export::export(&omg.net, None, &opts) {
+                let model = Model::from_bytes(&blob).expect("an exported blob loads");
+                let mut rt = Runtime::<OMG_ARENA>::new(model).expect("an exported blob fits its arena");
+                ok += usize::from(run_frames(&mut rt, &[0]) > 0);
+            }
+        }
+    }
+    ok
+}
+
+/// Arena of the `omg_model` target's runtimes (elements).
+const OMG_ARENA: usize = 1 << 16;
+
+// ---------------------------------------------------------------------------
+// The self-test section.
+
+/// The models the `self_test` target appends sections to: the format's
+/// byte-level example (2 -> 1) and a small phase-gated dense network.
+fn self_test_bases() -> &'static [Vec<u8>; 2] {
+    static B: OnceLock<[Vec<u8>; 2]> = OnceLock::new();
+    B.get_or_init(|| {
+        let opts = exporter::quantise::QuantOptions {
+            calibration_samples: 64,
+            ..exporter::quantise::QuantOptions::default()
+        };
+        let pfnn = host_sim::target::synthetic::pfnn_base(4, 6, 8, 5);
+        let dense = exporter::export::export(&pfnn, None, &opts).expect("export").0;
+        [fixture("example-v2.blob"), dense]
+    })
+}
+
+/// The quantised outputs of `rt` for every extreme quantised input at
+/// every edge phase (`None` for a refused frame).
+fn quantised_outputs<const A: usize>(rt: &mut Runtime<'_, A>) -> Vec<Option<Vec<i16>>> {
+    let n = rt.model().input_dim();
+    let mut v = Vec::new();
+    for q in extreme_quantised(n) {
+        for &ph in &PHASES {
+            v.push(rt.run_quantised(Phase::from_bits(ph), &q).ok().map(<[i16]>::to_vec));
+        }
+    }
+    v
+}
+
+/// The `self_test` target: a self-test section made from the input and
+/// appended to a model's payload, both CRCs resealed, so that the
+/// section's own checks decide. Byte 0: bit 0 picks the base model; bit 1
+/// set, the footer's fields (start, count, dimensions, version: 12 bytes)
+/// come from the input, as they are; clear, the footer is consistent with
+/// the records that follow (count from their length, at most 1,024), and
+/// such a blob must load; bit 2 (with a consistent footer) replaces every
+/// expected output by what the runtime computes, and the self-test must
+/// then pass with its count. Whatever loads must compute what the base
+/// computes, before and after its self-test; a failed self-test names a
+/// vector and an output inside the section.
+pub fn exercise_self_test(bytes: &[u8]) -> usize {
+    use phasegate::blob::{Framed, MAX_SELF_TEST_VECTORS, SELF_TEST_MAGIC, SELF_TEST_VERSION};
+    let Some((&mode, rest)) = bytes.split_first() else {
+        return 0;
+    };
+    let base = &self_test_bases()[usize::from(mode & 1)];
+    let mut base_rt = Runtime::<ARENA>::new(Model::from_bytes(base).expect("base")).expect("base");
+    let (ins, outs) = (base_rt.model().input_dim(), base_rt.model().output_dim());
+    let record = 4 + 2 * ins + 2 * outs;
+    let mut payload = Framed::parse(base, true).expect("base").payload.to_vec();
+    payload.resize(payload.len().next_multiple_of(4), 0);
+    let start = payload.len();
+    let consistent = mode & 2 == 0;
+    let (footer, mut records) = if consistent {
+        let count = (rest.len() / record).clamp(1, usize::from(MAX_SELF_TEST_VECTORS));
+        let mut r = rest.to_vec();
+        r.resize(count * record, 0);
+        let mut f = (start as u32).to_le_bytes().to_vec();
+        for v in [count as u16, ins as u16, outs as u16, SELF_TEST_VERSION] {
+            f.extend(v.to_le_bytes());
+        }
+        (f, r)
+    } else {
+        let (f, r) = rest.split_at(rest.len().min(12));
+        let mut f = f.to_vec();
+        f.resize(12, 0);
+        (f, r.to_vec())
+    };
+    let count = records.len() / record;
+    if consistent && mode & 4 != 0 {
+        for r in records.chunks_exact_mut(record) {
+            let phase = u32::from_le_bytes([r[0], r[1], r[2], r[3]]);
+            let x: Vec<i16> = r[4..4 + 2 * ins]
+                .chunks_exact(2)
+                .map(|b| i16::from_le_bytes([b[0], b[1]]))
+                .collect();
+            let y = base_rt.run_quantised(Phase::from_bits(phase), &x).expect("a frame runs").to_vec();
+            for (slot, v) in r[4 + 2 * ins..].chunks_exact_mut(2).zip(y) {
+                slot.copy_from_slice(&v.to_le_bytes());
+            }
+        }
+    }
+    payload.extend(&records);
+    payload.resize(payload.len().next_multiple_of(4), 0);
+    payload.extend(&footer);
+    payload.extend(SELF_TEST_MAGIC);
+    let blob = exporter::self_test::reseal(base, &payload).expect("the base loads");
+    let model = Model::from_bytes(&blob);
+    if consistent {
+        assert!(model.is_ok(), "a consistent section loads: {:?}", model.err());
+    }
+    let Ok(model) = model else {
+        return 0;
+    };
+    let mut rt = Runtime::<ARENA>::new(model).expect("the base's arena fits");
+    let expected = quantised_outputs(&mut base_rt);
+    assert_eq!(quantised_outputs(&mut rt), expected, "the section changes nothing the model computes");
+    let r = rt.run_self_test();
+    match r {
+        Ok(n) => {
+            assert!(usize::from(n) == count || !consistent, "{n} of {count} vectors");
+            assert!(n <= MAX_SELF_TEST_VECTORS);
+        }
+        Err(phasegate::Error::SelfTestFailed { vector, output, .. }) => {
+            assert!(mode & 4 == 0 || !consistent, "the runtime's own outputs pass: {r:?}");
+            assert!(usize::from(vector) < count.max(usize::from(MAX_SELF_TEST_VECTORS)), "{r:?}");
+            assert!(usize::from(output) < outs, "{r:?}");
+        }
+        Err(e) => panic!("a loaded self-test either passes or fails a vector: {e:?}"),
+    }
+    assert_eq!(quantised_outputs(&mut rt), expected, "the self-test leaves the model as it was");
+    1
+}
+
+// ---------------------------------------------------------------------------
 // Seeds.
 
 /// A committed golden file, by its path under `tests/golden/`.
@@ -1114,6 +1322,34 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
             .as_bytes()
             .to_vec(),
     ));
+    // OMG model directories: the committed tiny FE-OMG's config with its
+    // weights (run only, and exported), both files packed (large).
+    let (omg_w, omg_c) = omg_files();
+    for (mode, name) in [(0u8, "config.bin"), (2, "config-export.bin")] {
+        let mut b = vec![mode];
+        b.extend(omg_c.as_bytes());
+        v.push(("omg_model", name.into(), b));
+    }
+    if include_large {
+        v.push(("omg_model", "tiny-fe-r1.bin".into(), pack_omg(omg_c, omg_w)));
+    }
+    // Self-test sections: three vectors on each base, with a consistent
+    // footer (expected outputs as stored, then as computed), and a footer
+    // given field by field.
+    for base in 0..2u8 {
+        let records: Vec<u8> = (0..3 * 20u8).map(|i| i.wrapping_mul(37)).collect();
+        for flags in [0u8, 4] {
+            let mut b = vec![base | flags];
+            b.extend(&records);
+            v.push(("self_test", format!("base{base}-flags{flags}.bin"), b));
+        }
+    }
+    let mut b = vec![2u8];
+    for f in [40u32.to_le_bytes().to_vec(), 1u16.to_le_bytes().to_vec(), 2u16.to_le_bytes().to_vec(), 1u16.to_le_bytes().to_vec(), 1u16.to_le_bytes().to_vec()] {
+        b.extend(f);
+    }
+    b.extend([0, 0, 0, 0, 0x80, 0x01, 0x60, 0xff, 0x77, 0x0e, 0, 0]);
+    v.push(("self_test", "example-footer.bin".into(), b));
     // A PFNN directory: 3 inputs, 4 hidden, 2 outputs, 2 tables.
     let f = |n: usize, s: f32| -> Vec<u8> {
         (0..n)

@@ -207,6 +207,16 @@ fn configs_target_equivalent() {
 }
 
 #[test]
+fn omg_model_target_equivalent() {
+    byte_cases("omg_model", 300, 8, fuzz::exercise_omg_model);
+}
+
+#[test]
+fn self_test_target_equivalent() {
+    byte_cases("self_test", 2000, 9, fuzz::exercise_self_test);
+}
+
+#[test]
 fn pfnn_dir_target_equivalent() {
     byte_cases("pfnn_dir", 1000, 7, fuzz::exercise_pfnn_dir);
 }
@@ -232,6 +242,8 @@ fn seeds_are_valid_files() {
             "weights" => (fuzz::exercise_weights(bytes) > 0) != name.starts_with("hostile-"),
             "configs" => fuzz::exercise_configs(bytes) > 0,
             "pfnn_dir" => fuzz::exercise_pfnn_dir(bytes) == 2,
+            "omg_model" => fuzz::exercise_omg_model(bytes) == if name.contains("export") { 3 } else { 1 },
+            "self_test" => fuzz::exercise_self_test(bytes) == 1,
             other => panic!("unknown target {other}"),
         };
         assert!(ok, "{target}/{name} is not a valid seed");

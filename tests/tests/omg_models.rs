@@ -135,7 +135,11 @@ fn import_errors_name_the_file_and_the_tensor() {
     let e = format!("{:#}", read_omg(&w, &cfg).unwrap_err());
     assert_eq!(
         e,
-        format!("{}: tensor \"experts.w1\" is missing", w.display())
+        format!(
+            "{}: tensor \"experts.w1\" is missing (the weights of {})",
+            w.display(),
+            cfg.display()
+        )
     );
     let w = dir.path().join("shape.safetensors");
     write(&w, "", Some(("gate.1.w", vec![8, 32])));
@@ -143,8 +147,9 @@ fn import_errors_name_the_file_and_the_tensor() {
     assert_eq!(
         e,
         format!(
-            "{}: tensor \"gate.1.w\" has shape [8, 32], expected [16, 16] (gate 16 -> 16)",
-            w.display()
+            "{}: tensor \"gate.1.w\" has shape [8, 32], expected [16, 16] (gate 16 -> 16) (the weights of {})",
+            w.display(),
+            cfg.display()
         )
     );
     // An inconsistent config names the config.
