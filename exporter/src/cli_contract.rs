@@ -1,6 +1,7 @@
 //! The command-line tools' output contract, as a check their tests share
 //! (`exporter/tests/cli.rs`, `host-sim/tests/cli.rs`): a command with
-//! several outputs writes all of them or none ([`crate::io::atomic`]).
+//! several outputs writes all of them or none ([`crate::io::atomic`]), and
+//! a count at its largest accepted value runs under a memory cap.
 //! Test support: it panics on a broken contract.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
@@ -108,4 +109,125 @@ pub fn written_together_or_not_at_all(
     for (p, b) in inputs.iter().zip(&before) {
         assert_eq!(&std::fs::read(p).unwrap(), b, "{} changed", p.display());
     }
+}
+
+/// The address-space cap of [`runs_under_a_memory_cap`]: 4 GiB, above
+/// the largest accepted work (262,144 sampled rows at the PFNN's 342
+/// inputs and 311 outputs, in f64 and f32, about 1.5 GB resident;
+/// `docs/input-files.md`, "Bounds").
+pub const MEMORY_CAP: u64 = 1 << 32;
+
+/// How a run under the memory cap ended.
+#[derive(Clone, Copy, Debug, Eq, PartialEq)]
+pub enum CappedRun {
+    /// It finished, successfully, before the deadline.
+    Finished,
+    /// It was still running at the deadline, and an interrupt ended it
+    /// with exit 130 and no output.
+    Interrupted,
+}
+
+/// What [`runs_under_a_memory_cap`] saw.
+#[derive(Clone, Copy, Debug)]
+pub struct CapReport {
+    /// How it ended.
+    pub outcome: CappedRun,
+    /// The largest resident memory seen (`VmHWM`, sampled every 20 ms), MiB.
+    pub peak_rss_mib: u64,
+    /// Wall time, seconds.
+    pub seconds: f64,
+}
+
+fn peak_rss_kib(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    line.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// Runs `<bin> <args>` from `cwd` under an address-space cap of
+/// [`MEMORY_CAP`] (`prlimit --as`, which execs the tool: the pid is the
+/// tool's) in its own process group, for at most `deadline`. It must
+/// either finish successfully, or still be running at the deadline, and
+/// then end on an interrupt (SIGINT to the group, as Ctrl-C in a
+/// terminal) with exit 130, leaving `out_dir` (where every output of
+/// `args` goes) empty. A count that sizes an allocation up front fails
+/// at once under the cap (an allocation failure aborts, exit 134), as does
+/// memory that grows past it before the deadline: both fail this check.
+/// A run that ends with exit 1 and `verdict` in its error (a measuring
+/// command's own judgement of the model, such as "bars missed") finished
+/// its work and counts as finished. `None` when `prlimit` (util-linux) is not installed.
+#[cfg(unix)]
+pub fn runs_under_a_memory_cap(
+    bin: &Path,
+    cwd: &Path,
+    args: &[String],
+    out_dir: &Path,
+    deadline: std::time::Duration,
+    verdict: Option<&str>,
+) -> Option<CapReport> {
+    use std::os::unix::process::CommandExt;
+    Command::new("prlimit").arg("--version").output().ok()?;
+    let logs = tempfile::tempdir().unwrap();
+    let (out_log, err_log) = (logs.path().join("stdout"), logs.path().join("stderr"));
+    let what = format!("{} {}", bin.display(), args.join(" "));
+    let start = std::time::Instant::now();
+    let mut child = Command::new("prlimit")
+        .arg(format!("--as={MEMORY_CAP}"))
+        .arg(bin)
+        .args(args)
+        .current_dir(cwd)
+        .stdout(std::fs::File::create(&out_log).unwrap())
+        .stderr(std::fs::File::create(&err_log).unwrap())
+        .process_group(0)
+        .spawn()
+        .expect("prlimit runs");
+    let pid = child.id();
+    let mut peak = 0;
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break Some(s);
+        }
+        peak = peak.max(peak_rss_kib(pid).unwrap_or(0));
+        if start.elapsed() >= deadline {
+            break None;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    let err = || std::fs::read_to_string(&err_log).unwrap_or_default();
+    let outcome = match status {
+        Some(s) => {
+            let judged = s.code() == Some(1) && verdict.is_some_and(|v| err().contains(v));
+            assert!(
+                s.success() || judged,
+                "{what}: {s} under a {MEMORY_CAP}-byte cap: {}",
+                err()
+            );
+            CappedRun::Finished
+        }
+        None => {
+            let k = Command::new("kill")
+                .args(["-INT", "--", &format!("-{pid}")])
+                .status()
+                .unwrap();
+            assert!(k.success(), "{what}: cannot interrupt");
+            let s = child.wait().unwrap();
+            assert_eq!(
+                s.code(),
+                Some(130),
+                "{what}: {s} on an interrupt: {}",
+                err()
+            );
+            assert_eq!(
+                files_in(out_dir),
+                Vec::<PathBuf>::new(),
+                "{what}: left output"
+            );
+            CappedRun::Interrupted
+        }
+    };
+    Some(CapReport {
+        outcome,
+        peak_rss_mib: peak / 1024,
+        seconds: start.elapsed().as_secs_f64(),
+    })
 }

@@ -666,6 +666,9 @@ fn main() -> ExitCode {
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
+            if exporter::atomic::is_interrupted(&e) {
+                exporter::atomic::end_interrupted();
+            }
             eprintln!("error: {}", format!("{e:#}").replace('\n', " "));
             ExitCode::FAILURE
         }

@@ -1373,3 +1373,138 @@ fn self_test_is_stored_in_every_kind_of_model_blob() {
         assert!(json(&rep).to_string().find("self_test").is_none(), "{name}");
     }
 }
+
+/// Every count option at its largest accepted value (the others at their
+/// defaults), under the 4 GiB cap of
+/// `exporter::cli_contract::runs_under_a_memory_cap` for 3 seconds: each
+/// finishes or is still running within the cap, and then an interrupt
+/// leaves no output. An up-front allocation sized by the count would fail
+/// at once (an allocation failure aborts: exit 134).
+#[cfg(unix)]
+#[test]
+fn every_count_option_at_its_largest_value_runs_under_a_memory_cap() {
+    use exporter::cli_args::bounds;
+    use exporter::cli_contract::{runs_under_a_memory_cap, CappedRun};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let tmp = tempfile::tempdir().unwrap();
+    let w = "tests/golden/default/model.npz";
+    let base = "tests/golden/default/model.blob";
+    let adapter = tmp.path().join("adapter.npz");
+    exporter::npz::write_npz(&adapter, &[("w", vec![4, 32], vec![0.01; 128])]).unwrap();
+    let adapter = adapter.display().to_string();
+    let omg = [
+        "omg",
+        "--weights",
+        "models/omg/tiny_fe_r1/model.safetensors",
+        "--config",
+        "models/omg/tiny_fe_r1/config.json",
+    ];
+    let (samples, rank, steps) = (
+        bounds::SAMPLES.to_string(),
+        bounds::RANK.to_string(),
+        bounds::STEPS.to_string(),
+    );
+    let (bytes, self_test) = (bounds::BYTES.to_string(), bounds::SELF_TEST.to_string());
+    let npz = ["npz", "--weights", w, "--gating", "cubic"];
+    let cp = ["cp", "--weights", w, "--cp-rank", "8"];
+    let style = [
+        "style",
+        "--base",
+        base,
+        "--base-weights",
+        w,
+        "--adapter",
+        &adapter,
+        "--name",
+        "lean",
+    ];
+    let cases: Vec<Vec<&str>> = vec![
+        [
+            &npz[..],
+            &[
+                "--rounding",
+                "compensated",
+                "--compensation-samples",
+                &samples,
+            ],
+        ]
+        .concat(),
+        [&npz[..], &["--int16-budget", &bytes]].concat(),
+        [&npz[..], &["--self-test", &self_test]].concat(),
+        vec!["cp", "--weights", w, "--cp-rank", &rank],
+        [&cp[..], &["--cp-max-rank", &rank]].concat(),
+        [&cp[..], &["--distill", &steps]].concat(),
+        [&cp[..], &["--distill", "10", "--distill-samples", &samples]].concat(),
+        [&cp[..], &["--als-iters", &steps]].concat(),
+        [&cp[..], &["--samples", &samples]].concat(),
+        [
+            &cp[..],
+            &[
+                "--rounding",
+                "compensated",
+                "--compensation-samples",
+                &samples,
+            ],
+        ]
+        .concat(),
+        [&cp[..], &["--self-test", &self_test]].concat(),
+        [&omg[..], &["--self-test", &self_test]].concat(),
+        [&style[..], &["--samples", &samples]].concat(),
+    ];
+    for args in &cases {
+        let out = tempfile::tempdir().unwrap();
+        let o = out.path().join("m.blob").display().to_string();
+        let mut args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+        args.extend(["-o".to_string(), o]);
+        let r = runs_under_a_memory_cap(
+            Path::new(env!("CARGO_BIN_EXE_exporter")),
+            &root,
+            &args,
+            out.path(),
+            std::time::Duration::from_secs(3),
+            None,
+        );
+        let Some(r) = r else {
+            eprintln!("prlimit (util-linux) is not installed: memory-cap test skipped");
+            return;
+        };
+        if r.outcome == CappedRun::Finished {
+            assert!(out.path().join("m.blob").exists(), "{args:?}: no blob");
+        }
+        eprintln!(
+            "{:?} after {:.1} s, peak {} MiB: exporter {}",
+            r.outcome,
+            r.seconds,
+            r.peak_rss_mib,
+            args.join(" ")
+        );
+    }
+    // cp-report writes a table (and --json), not a blob.
+    for extra in [
+        ["--ranks", rank.as_str()],
+        ["--samples", samples.as_str()],
+        ["--als-iters", steps.as_str()],
+    ] {
+        let out = tempfile::tempdir().unwrap();
+        let j = out.path().join("r.json").display().to_string();
+        let mut args: Vec<String> = ["cp-report", "--weights", w].map(String::from).to_vec();
+        args.extend(extra.map(String::from));
+        args.extend(["--json".to_string(), j]);
+        let r = runs_under_a_memory_cap(
+            Path::new(env!("CARGO_BIN_EXE_exporter")),
+            &root,
+            &args,
+            out.path(),
+            std::time::Duration::from_secs(3),
+            None,
+        )
+        .expect("prlimit was found above");
+        eprintln!(
+            "{:?} after {:.1} s, peak {} MiB: exporter {}",
+            r.outcome,
+            r.seconds,
+            r.peak_rss_mib,
+            args.join(" ")
+        );
+    }
+}

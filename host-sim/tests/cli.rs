@@ -498,3 +498,454 @@ fn an_interrupted_run_leaves_no_output() {
     let left: Vec<_> = std::fs::read_dir(tmp.path()).unwrap().collect();
     assert!(left.is_empty(), "{left:?}");
 }
+
+/// Memory stays bounded by the work asked for: the largest `--frames`
+/// accepted (an hour at 60 fps, `bounds::FRAMES`) runs to the end under a
+/// 4 GiB address-space cap (`prlimit --as`; about 0.9 GB resident was
+/// measured), and its record is written.
+#[cfg(unix)]
+#[test]
+fn the_largest_frame_count_runs_under_a_memory_cap() {
+    if Command::new("prlimit").arg("--version").output().is_err() {
+        eprintln!("prlimit (util-linux) is not installed: memory-cap test skipped");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("hour.npz");
+    let frames = exporter::cli_args::bounds::FRAMES.to_string();
+    let o = Command::new("prlimit")
+        .arg(format!("--as={}", exporter::cli_contract::MEMORY_CAP))
+        .arg(env!("CARGO_BIN_EXE_host-sim"))
+        .args([
+            "rollout",
+            "--model",
+            s(&golden("model.blob")),
+            "--script",
+            "walk",
+        ])
+        .args(["--frames", &frames, "--out", s(&out)])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = host_sim::rollout::Rollout::read(&out).unwrap();
+    assert_eq!(r.poses.len(), exporter::cli_args::bounds::FRAMES);
+}
+
+/// A PFNN weight directory (the demo's `.bin` files) of a network of a
+/// PFNN controller's width (342 inputs, 311 outputs) with 8 hidden units,
+/// 50 tables.
+fn small_pfnn_dir(dir: &Path) {
+    use exporter::pfnn_dir::{write_pfnn_dir, LayerTables, PfnnTables};
+    use ndarray::{Array1, Array2};
+    let (x, h, y) = (342, 8, 311);
+    let layers = [(h, x), (h, h), (y, h)].map(|(r, c)| LayerTables {
+        w: (0..50)
+            .map(|t| {
+                Array2::from_shape_fn((r, c), |(i, j)| {
+                    ((t + i * c + j) % 7) as f32 * 0.4 / c as f32 - 0.2
+                })
+            })
+            .collect(),
+        b: (0..50).map(|_| Array1::from_elem(r, 0.1f32)).collect(),
+    });
+    let tables = PfnnTables {
+        xmean: Array1::zeros(x),
+        xstd: Array1::from_elem(x, 1.0),
+        ymean: Array1::zeros(y),
+        ystd: Array1::from_elem(y, 1.0),
+        layers,
+    };
+    std::fs::create_dir_all(dir).unwrap();
+    write_pfnn_dir(&tables, dir).unwrap();
+}
+
+/// Every count option of every command at its largest accepted value
+/// (with the other counts at their defaults; for the row-bounded ones,
+/// the largest combination the row bound accepts), under the 4 GiB cap
+/// of `exporter::cli_contract::runs_under_a_memory_cap` for 3 seconds:
+/// each either finishes or is still running within the cap, and then an
+/// interrupt leaves no output. An up-front allocation sized by the count
+/// would fail at once (the abort this issue found: exit 134). Commands
+/// that need the OMG data set or QEMU are left out, saying so, when those
+/// are absent.
+#[cfg(unix)]
+#[test]
+fn every_count_option_at_its_largest_value_runs_under_a_memory_cap() {
+    use exporter::cli_args::bounds;
+    use exporter::cli_contract::{runs_under_a_memory_cap, CappedRun};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a.npz"), tmp.path().join("b.npz"));
+    for (p, script) in [(&a, "walk"), (&b, "walk")] {
+        let o = host_sim(&[
+            "rollout",
+            "--model",
+            s(&golden("model.blob")),
+            "--script",
+            script,
+            "--frames",
+            "120",
+            "--out",
+            s(p),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let blob = golden("model.blob").display().to_string();
+    // A blob without golden vectors: `target` generates its frames.
+    let lone_blob = tmp.path().join("model.blob");
+    let net = host_sim::target::synthetic::pfnn_base(4, 6, 8, 5);
+    let (bytes, _) = exporter::export::export(&net, None, &Default::default()).unwrap();
+    std::fs::write(&lone_blob, bytes).unwrap();
+    let lone_blob = lone_blob.display().to_string();
+    let dir = tmp.path().join("pfnn");
+    small_pfnn_dir(&dir);
+    let dir = dir.display().to_string();
+    let tiny = root.join("models/omg/tiny_fe_r1").display().to_string();
+    let data = root.join("data/omg");
+    let has_data = data.join("R1/clips.json").exists();
+    let data = data.display().to_string();
+    let has_qemu = Command::new("qemu-system-arm")
+        .arg("--version")
+        .output()
+        .is_ok();
+    let (frames, samples, runs) = (
+        bounds::FRAMES.to_string(),
+        bounds::SAMPLES.to_string(),
+        bounds::RUNS.to_string(),
+    );
+    let (rank, steps, bytes) = (
+        bounds::RANK.to_string(),
+        bounds::STEPS.to_string(),
+        bounds::BYTES.to_string(),
+    );
+    let self_test = bounds::SELF_TEST.to_string();
+    // The most tours of 600 frames, and the most frames of --tours, the
+    // row bound accepts.
+    let tours_600 = (bounds::ROWS / 600).to_string();
+    let frames_of_tours = (bounds::ROWS / bounds::RUNS).to_string();
+    // --clips is bounded by the clips the data set holds: more are refused
+    // at once, naming the file and the count, which is then the largest.
+    let clips = if has_data {
+        let o = host_sim(&[
+            "rollout-dataset",
+            "--omg",
+            &tiny,
+            "--data",
+            &data,
+            "--clips",
+            &runs,
+            "-o",
+            s(&tmp.path().join("x.npz")),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.trim_end().lines().count() == 1,
+            "{err}"
+        );
+        let held = err.split(": ").nth(2).and_then(|t| t.split(' ').next());
+        held.unwrap_or_else(|| panic!("{err}")).to_string()
+    } else {
+        String::new()
+    };
+    let (a, b) = (a.display().to_string(), b.display().to_string());
+    let mut cases: Vec<(bool, Vec<&str>)> = vec![
+        (
+            true,
+            vec!["demo", "--pfnn", &dir, "--frames", &frames, "--no-target"],
+        ),
+        (
+            true,
+            vec![
+                "accuracy",
+                "--pfnn",
+                &dir,
+                "--samples",
+                &samples,
+                "--json",
+                "{out}/a.json",
+            ],
+        ),
+        (
+            true,
+            vec![
+                "accuracy",
+                "--pfnn",
+                &dir,
+                "--rounding",
+                "compensated",
+                "--compensation-samples",
+                &samples,
+                "--json",
+                "{out}/a.json",
+            ],
+        ),
+        (
+            true,
+            vec![
+                "accuracy",
+                "--pfnn",
+                &dir,
+                "--calibration-tours",
+                &tours_600,
+                "--json",
+                "{out}/a.json",
+            ],
+        ),
+        (
+            true,
+            vec![
+                "accuracy",
+                "--pfnn",
+                &dir,
+                "--int16-budget",
+                &bytes,
+                "--json",
+                "{out}/a.json",
+            ],
+        ),
+        (
+            has_qemu,
+            vec!["target", "--model", &lone_blob, "--frames", &frames],
+        ),
+        (
+            has_qemu,
+            vec![
+                "target",
+                "--model",
+                &blob,
+                "--controller",
+                "walk",
+                "--frames",
+                &frames,
+            ],
+        ),
+        (
+            has_qemu,
+            vec!["target", "--model", &blob, "--self-test", &self_test],
+        ),
+        (
+            has_data,
+            vec![
+                "omg-reach",
+                &tiny,
+                "--data",
+                &data,
+                "--train-clips",
+                &runs,
+                "--json",
+                "{out}/r.json",
+            ],
+        ),
+        (
+            has_data,
+            vec![
+                "omg-reach",
+                &tiny,
+                "--data",
+                &data,
+                "--input-noise",
+                "0.01",
+                "--noise-seeds",
+                &runs,
+                "--json",
+                "{out}/r.json",
+            ],
+        ),
+        (
+            true,
+            vec![
+                "rollout-compare",
+                &a,
+                &b,
+                "--every",
+                &frames,
+                "--json",
+                "{out}/c.json",
+            ],
+        ),
+        (
+            true,
+            vec![
+                "rollout-dataset",
+                "--pfnn",
+                &dir,
+                "--tours",
+                &runs,
+                "--frames",
+                &frames_of_tours,
+                "-o",
+                "{out}/d.npz",
+            ],
+        ),
+        (
+            true,
+            vec![
+                "rollout-dataset",
+                "--pfnn",
+                &dir,
+                "--scripts",
+                "walk",
+                "--frames",
+                &frames,
+                "-o",
+                "{out}/d.npz",
+            ],
+        ),
+        (
+            has_data,
+            vec![
+                "rollout-dataset",
+                "--omg",
+                &tiny,
+                "--data",
+                &data,
+                "--clips",
+                &clips,
+                "-o",
+                "{out}/d.npz",
+            ],
+        ),
+        (
+            true,
+            vec![
+                "fidelity",
+                "--pfnn",
+                &dir,
+                "--script",
+                "walk",
+                "--frames",
+                &frames,
+                "--json",
+                "{out}/f.json",
+            ],
+        ),
+        (
+            true,
+            vec![
+                "fidelity",
+                "--pfnn",
+                &dir,
+                "--calibration-tours",
+                &tours_600,
+                "--json",
+                "{out}/f.json",
+            ],
+        ),
+        (
+            true,
+            vec![
+                "fidelity",
+                "--pfnn",
+                &dir,
+                "--rounding",
+                "compensated",
+                "--compensation-samples",
+                &samples,
+                "--json",
+                "{out}/f.json",
+            ],
+        ),
+        (
+            true,
+            vec![
+                "fidelity",
+                "--pfnn",
+                &dir,
+                "--int16-budget",
+                &bytes,
+                "--json",
+                "{out}/f.json",
+            ],
+        ),
+        (
+            true,
+            vec!["render", &a, "--snapshots", &runs, "-o", "{out}/r.png"],
+        ),
+        (
+            true,
+            vec![
+                "style-demo",
+                "--pfnn",
+                &dir,
+                "--out",
+                "{out}/s",
+                "--rank",
+                &rank,
+            ],
+        ),
+        (
+            true,
+            vec![
+                "style-demo",
+                "--pfnn",
+                &dir,
+                "--out",
+                "{out}/s",
+                "--steps",
+                &steps,
+            ],
+        ),
+        (
+            true,
+            vec![
+                "style-demo",
+                "--pfnn",
+                &dir,
+                "--out",
+                "{out}/s",
+                "--rounds",
+                &runs,
+            ],
+        ),
+        (
+            true,
+            vec![
+                "style-demo",
+                "--pfnn",
+                &dir,
+                "--out",
+                "{out}/s",
+                "--frames",
+                &frames,
+            ],
+        ),
+    ];
+    let skipped: Vec<String> = cases
+        .iter()
+        .filter(|(run, _)| !run)
+        .map(|(_, args)| args[..2].join(" "))
+        .collect();
+    if !skipped.is_empty() {
+        eprintln!("without the OMG data set or QEMU, not run: {skipped:?}");
+    }
+    cases.retain(|(run, _)| *run);
+    let scratch = tempfile::tempdir().unwrap();
+    for (_, args) in &cases {
+        let out = tempfile::tempdir().unwrap();
+        let o = out.path().display().to_string();
+        let args: Vec<String> = args.iter().map(|a| a.replace("{out}", &o)).collect();
+        let Some(r) = runs_under_a_memory_cap(
+            Path::new(env!("CARGO_BIN_EXE_host-sim")),
+            scratch.path(),
+            &args,
+            out.path(),
+            std::time::Duration::from_secs(3),
+            Some("bars missed"),
+        ) else {
+            eprintln!("prlimit (util-linux) is not installed: memory-cap test skipped");
+            return;
+        };
+        if r.outcome == CappedRun::Finished && args[0] != "fidelity" {
+            let n = std::fs::read_dir(out.path()).unwrap().count();
+            let writes = args.iter().any(|a| a.starts_with(&o));
+            assert!(n > 0 || !writes, "{args:?}: finished without output");
+        }
+        eprintln!(
+            "{:?} after {:.1} s, peak {} MiB: {}",
+            r.outcome,
+            r.seconds,
+            r.peak_rss_mib,
+            args.join(" ")
+        );
+    }
+}

@@ -891,7 +891,10 @@ pub fn exercise_omg_model(bytes: &[u8]) -> usize {
         rest.split_at((u32::from_le_bytes(*len) as usize).min(rest.len()))
     };
     let mut ok = 0;
-    let from_files = exporter::net::omg::read_omg(&write("m.safetensors", weights), &write("config.json", config));
+    let from_files = exporter::net::omg::read_omg(
+        &write("m.safetensors", weights),
+        &write("config.json", config),
+    );
     let Ok(text) = std::str::from_utf8(config) else {
         assert!(from_files.is_err(), "a config that is not UTF-8 is refused");
         return 0;
@@ -916,7 +919,10 @@ pub fn exercise_omg_model(bytes: &[u8]) -> usize {
     };
     assert!(!y.is_empty());
     if export {
-        for format in [phasegate::blob::WeightFormat::I8, phasegate::blob::WeightFormat::I16] {
+        for format in [
+            phasegate::blob::WeightFormat::I8,
+            phasegate::blob::WeightFormat::I16,
+        ] {
             let opts = exporter::quantise::QuantOptions {
                 weights: format,
                 calibration_samples: 16,
@@ -924,7 +930,8 @@ pub fn exercise_omg_model(bytes: &[u8]) -> usize {
             };
             if let Ok((blob, _)) = exporter::export::export(&omg.net, None, &opts) {
                 let model = Model::from_bytes(&blob).expect("an exported blob loads");
-                let mut rt = Runtime::<OMG_ARENA>::new(model).expect("an exported blob fits its arena");
+                let mut rt =
+                    Runtime::<OMG_ARENA>::new(model).expect("an exported blob fits its arena");
                 ok += usize::from(run_frames(&mut rt, &[0]) > 0);
             }
         }
@@ -948,7 +955,9 @@ fn self_test_bases() -> &'static [Vec<u8>; 2] {
             ..exporter::quantise::QuantOptions::default()
         };
         let pfnn = host_sim::target::synthetic::pfnn_base(4, 6, 8, 5);
-        let dense = exporter::export::export(&pfnn, None, &opts).expect("export").0;
+        let dense = exporter::export::export(&pfnn, None, &opts)
+            .expect("export")
+            .0;
         [fixture("example-v2.blob"), dense]
     })
 }
@@ -960,7 +969,11 @@ fn quantised_outputs<const A: usize>(rt: &mut Runtime<'_, A>) -> Vec<Option<Vec<
     let mut v = Vec::new();
     for q in extreme_quantised(n) {
         for &ph in &PHASES {
-            v.push(rt.run_quantised(Phase::from_bits(ph), &q).ok().map(<[i16]>::to_vec));
+            v.push(
+                rt.run_quantised(Phase::from_bits(ph), &q)
+                    .ok()
+                    .map(<[i16]>::to_vec),
+            );
         }
     }
     v
@@ -1013,7 +1026,10 @@ pub fn exercise_self_test(bytes: &[u8]) -> usize {
                 .chunks_exact(2)
                 .map(|b| i16::from_le_bytes([b[0], b[1]]))
                 .collect();
-            let y = base_rt.run_quantised(Phase::from_bits(phase), &x).expect("a frame runs").to_vec();
+            let y = base_rt
+                .run_quantised(Phase::from_bits(phase), &x)
+                .expect("a frame runs")
+                .to_vec();
             for (slot, v) in r[4 + 2 * ins..].chunks_exact_mut(2).zip(y) {
                 slot.copy_from_slice(&v.to_le_bytes());
             }
@@ -1026,28 +1042,49 @@ pub fn exercise_self_test(bytes: &[u8]) -> usize {
     let blob = exporter::self_test::reseal(base, &payload).expect("the base loads");
     let model = Model::from_bytes(&blob);
     if consistent {
-        assert!(model.is_ok(), "a consistent section loads: {:?}", model.err());
+        assert!(
+            model.is_ok(),
+            "a consistent section loads: {:?}",
+            model.err()
+        );
     }
     let Ok(model) = model else {
         return 0;
     };
     let mut rt = Runtime::<ARENA>::new(model).expect("the base's arena fits");
     let expected = quantised_outputs(&mut base_rt);
-    assert_eq!(quantised_outputs(&mut rt), expected, "the section changes nothing the model computes");
+    assert_eq!(
+        quantised_outputs(&mut rt),
+        expected,
+        "the section changes nothing the model computes"
+    );
     let r = rt.run_self_test();
     match r {
         Ok(n) => {
-            assert!(usize::from(n) == count || !consistent, "{n} of {count} vectors");
+            assert!(
+                usize::from(n) == count || !consistent,
+                "{n} of {count} vectors"
+            );
             assert!(n <= MAX_SELF_TEST_VECTORS);
         }
         Err(phasegate::Error::SelfTestFailed { vector, output, .. }) => {
-            assert!(mode & 4 == 0 || !consistent, "the runtime's own outputs pass: {r:?}");
-            assert!(usize::from(vector) < count.max(usize::from(MAX_SELF_TEST_VECTORS)), "{r:?}");
+            assert!(
+                mode & 4 == 0 || !consistent,
+                "the runtime's own outputs pass: {r:?}"
+            );
+            assert!(
+                usize::from(vector) < count.max(usize::from(MAX_SELF_TEST_VECTORS)),
+                "{r:?}"
+            );
             assert!(usize::from(output) < outs, "{r:?}");
         }
         Err(e) => panic!("a loaded self-test either passes or fails a vector: {e:?}"),
     }
-    assert_eq!(quantised_outputs(&mut rt), expected, "the self-test leaves the model as it was");
+    assert_eq!(
+        quantised_outputs(&mut rt),
+        expected,
+        "the self-test leaves the model as it was"
+    );
     1
 }
 
@@ -1345,7 +1382,13 @@ pub fn seeds(include_large: bool) -> Vec<(&'static str, String, Vec<u8>)> {
         }
     }
     let mut b = vec![2u8];
-    for f in [40u32.to_le_bytes().to_vec(), 1u16.to_le_bytes().to_vec(), 2u16.to_le_bytes().to_vec(), 1u16.to_le_bytes().to_vec(), 1u16.to_le_bytes().to_vec()] {
+    for f in [
+        40u32.to_le_bytes().to_vec(),
+        1u16.to_le_bytes().to_vec(),
+        2u16.to_le_bytes().to_vec(),
+        1u16.to_le_bytes().to_vec(),
+        1u16.to_le_bytes().to_vec(),
+    ] {
         b.extend(f);
     }
     b.extend([0, 0, 0, 0, 0x80, 0x01, 0x60, 0xff, 0x77, 0x0e, 0, 0]);

@@ -242,7 +242,9 @@ fn seeds_are_valid_files() {
             "weights" => (fuzz::exercise_weights(bytes) > 0) != name.starts_with("hostile-"),
             "configs" => fuzz::exercise_configs(bytes) > 0,
             "pfnn_dir" => fuzz::exercise_pfnn_dir(bytes) == 2,
-            "omg_model" => fuzz::exercise_omg_model(bytes) == if name.contains("export") { 3 } else { 1 },
+            "omg_model" => {
+                fuzz::exercise_omg_model(bytes) == if name.contains("export") { 3 } else { 1 }
+            }
             "self_test" => fuzz::exercise_self_test(bytes) == 1,
             other => panic!("unknown target {other}"),
         };

@@ -31,14 +31,58 @@ pub const INTERRUPTED: i32 = 130;
 /// being renamed into place waits until all of them are (so the run leaves
 /// every output or none). Called first thing by `exporter` and `host-sim`.
 pub fn clean_up_on_interrupt() {
-    let _ = ctrlc::set_handler(|| {
-        let staged = STAGED.lock().map(|v| v.clone()).unwrap_or_default();
-        for p in staged {
-            let _ = std::fs::remove_file(p);
+    let _ = ctrlc::set_handler(|| end_interrupted());
+}
+
+/// Ends the run as interrupted: the staged temporaries removed (after any
+/// renames in progress), one line, exit [`INTERRUPTED`]. The signal
+/// handler calls it, and so does a tool's `main` whose command failed with
+/// [`Interrupted`]; whichever comes first ends the process, the other
+/// waits for it.
+pub fn end_interrupted() -> ! {
+    static ENDING: Mutex<()> = Mutex::new(());
+    let _first = ENDING.lock();
+    let staged = STAGED.lock().map(|v| v.clone()).unwrap_or_default();
+    for p in staged {
+        let _ = std::fs::remove_file(p);
+    }
+    eprintln!("error: interrupted; no output written");
+    std::process::exit(INTERRUPTED);
+}
+
+/// The error of a command whose child process (a build, QEMU) was ended
+/// by an interrupt: Ctrl-C reaches the whole process group, and the
+/// child's failure may be seen before the tool's own handler runs. A
+/// tool's `main` ends such a run with [`end_interrupted`], not with the
+/// child's failure.
+#[derive(Debug)]
+pub struct Interrupted;
+
+impl std::fmt::Display for Interrupted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("interrupted")
+    }
+}
+
+impl std::error::Error for Interrupted {}
+
+/// `Err(Interrupted)` if `status` is that of a child ended by SIGINT or
+/// SIGTERM.
+pub fn check_not_interrupted(status: std::process::ExitStatus) -> Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::ExitStatusExt;
+        if matches!(status.signal(), Some(2 | 15)) {
+            return Err(Interrupted.into());
         }
-        eprintln!("error: interrupted; no output written");
-        std::process::exit(INTERRUPTED);
-    });
+    }
+    let _ = status;
+    Ok(())
+}
+
+/// Whether `e` (a command's error) is, or was caused by, an interrupt.
+pub fn is_interrupted(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| c.is::<Interrupted>())
 }
 
 /// From now on, files read through [`read_input`] / [`note_input`] may not

@@ -87,6 +87,7 @@ pub fn cargo_build_bin(
     let out = cmd
         .output()
         .with_context(|| format!("cannot run cargo in {}", dir.display()))?;
+    exporter::atomic::check_not_interrupted(out.status)?;
     Ok(BuildOutput {
         success: out.status.success(),
         stderr: String::from_utf8_lossy(&out.stderr).into_owned(),

@@ -128,6 +128,7 @@ pub fn run_with(
     });
     let status = loop {
         if let Some(status) = child.try_wait().context("waiting for QEMU")? {
+            exporter::atomic::check_not_interrupted(status)?;
             break status;
         }
         if start.elapsed() > timeout {
