@@ -118,6 +118,12 @@ pub mod bounds {
     /// about 720 MB of f64 rows at the PFNN's 342 inputs.
     pub const ROWS: usize = 262_144;
 
+    /// Training rows of `host-sim style-demo` (its scripts times
+    /// `--frames` times the fits, `--rounds` + 1): a row takes about 19 KB
+    /// while the adapters are fitted (1.27 GB peak resident at 65,530
+    /// rows), so a quarter of [`ROWS`].
+    pub const STYLE_ROWS: usize = 65_536;
+
     /// A value parser for a count option of at most `max`.
     pub fn at_most<T>(max: T) -> impl Fn(&str) -> Result<T, String> + Clone + Send + Sync
     where

@@ -342,6 +342,23 @@ fn count_options_refuse_values_above_their_maximum() {
         );
     }
     let tmp = tempfile::tempdir().unwrap();
+    let o = host_sim(&[
+        "style-demo",
+        "--pfnn",
+        s(&golden("model.npz")),
+        "--out",
+        s(&tmp.path().join("s")),
+        "--frames",
+        "216000",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("make 2160000 rows") && err.contains(&bounds::STYLE_ROWS.to_string()),
+        "{err}"
+    );
+    assert!(!tmp.path().join("s").exists());
     let out = tmp.path().join("d.npz");
     let o = host_sim(&[
         "rollout-dataset",
@@ -647,6 +664,12 @@ fn every_count_option_at_its_largest_value_runs_under_a_memory_cap() {
     } else {
         String::new()
     };
+    // style-demo's rows (scripts x frames x fits) have their own bound:
+    // the most frames at the default round, the most rounds at the
+    // default 480 frames.
+    let scripts = host_sim::style::demo::training_rows(1, 0);
+    let style_frames = (bounds::STYLE_ROWS / (scripts * 2)).to_string();
+    let style_rounds = (bounds::STYLE_ROWS / (scripts * 480) - 1).to_string();
     let (a, b) = (a.display().to_string(), b.display().to_string());
     let mut cases: Vec<(bool, Vec<&str>)> = vec![
         (
@@ -894,7 +917,7 @@ fn every_count_option_at_its_largest_value_runs_under_a_memory_cap() {
                 "--out",
                 "{out}/s",
                 "--rounds",
-                &runs,
+                &style_rounds,
             ],
         ),
         (
@@ -906,7 +929,7 @@ fn every_count_option_at_its_largest_value_runs_under_a_memory_cap() {
                 "--out",
                 "{out}/s",
                 "--frames",
-                &frames,
+                &style_frames,
             ],
         ),
     ];

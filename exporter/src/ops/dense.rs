@@ -311,7 +311,7 @@ pub fn quantise_dequantised(
     let (mut max_dot, mut max_blend) = (0.0f64, 0.0f64);
     for (i, r) in l1.iter().enumerate() {
         let worst_expert = (0..experts)
-            .map(|k| i128::from(r[k]) * 32768 + i128::from(bias[k * out_dim + i].abs()))
+            .map(|k| i128::from(r[k]) * 32768 + i128::from(bias[k * out_dim + i].unsigned_abs()))
             .max()
             .unwrap_or(0);
         let blend = worst_expert * i128::from(gsum);
@@ -399,5 +399,31 @@ mod tests {
         h[(3, 3)] = 0.0;
         let comp = round_compensated(&exact, &h, 127.0).unwrap();
         assert_eq!(comp, exact.mapv(|v| v.round().clamp(-127.0, 127.0)));
+    }
+
+    /// A bias far beyond any integer (here -1e300, which rounds and
+    /// saturates to `i64::MIN`) is bounded by its magnitude, never by a
+    /// negated `i64::MIN` (which overflows: a panic in a debug build; in a
+    /// release build a negative bound, so a blob that requantises for the
+    /// wrong range): no accumulator can hold the row, and the export says
+    /// so. (F6 in `fuzz/README.md`.)
+    #[test]
+    fn a_saturated_bias_is_bounded_by_its_magnitude() {
+        let golden = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../tests/golden/default/model.npz");
+        let mut net = crate::npz::pfnn_from_npz(&golden, crate::net::GatingMode::Cubic).unwrap();
+        let crate::ops::NetLayer::Dense(l) = &mut net.layers[0] else {
+            panic!("the golden's first layer is dense");
+        };
+        l.b[0][0] = -1e300;
+        let opts = crate::quantise::QuantOptions {
+            calibration_samples: 16,
+            ..Default::default()
+        };
+        let e = crate::export::export(&net, None, &opts).unwrap_err();
+        assert_eq!(
+            format!("{e:#}"),
+            "layer 0 row 0: no accumulator can be proven not to overflow"
+        );
     }
 }

@@ -374,8 +374,29 @@ fn max_phase_step(run: &Run) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The training rows `style-demo` keeps for `frames` and `rounds`: every
+/// training script's frames, once per fit (the data of each round is
+/// added to the last's).
+pub fn training_rows(frames: usize, rounds: usize) -> usize {
+    training_scripts(0)
+        .len()
+        .saturating_mul(frames)
+        .saturating_mul(rounds.saturating_add(1))
+}
+
 /// Runs the demonstration.
 pub fn style_demo(args: &StyleDemoArgs) -> Result<DemoReport> {
+    let rows = training_rows(args.frames, args.rounds);
+    if rows > exporter::cli_args::bounds::STYLE_ROWS {
+        anyhow::bail!(
+            "{} training scripts of {} frames over {} fits make {rows} rows, more than the \
+             largest style-demo data set, {} rows: fewer --frames or --rounds",
+            training_scripts(0).len(),
+            args.frames,
+            args.rounds.saturating_add(1),
+            exporter::cli_args::bounds::STYLE_ROWS
+        );
+    }
     // Every file or none, in `--out` (made if missing).
     let mut outputs = exporter::atomic::Outputs::new();
     outputs.dir(&args.out);
