@@ -164,7 +164,7 @@ fn import_errors_name_the_file_and_the_tensor() {
     );
     assert!(
         e.starts_with(&format!(
-            "{}: out_slices dphase 0..8, z 8..41",
+            "{}: out_slices.z 8..41 and out_slices.cost 40..64 overlap",
             bad.display()
         )),
         "{e}"
