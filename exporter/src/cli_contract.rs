@@ -112,8 +112,9 @@ pub fn written_together_or_not_at_all(
 }
 
 /// The address-space cap of [`runs_under_a_memory_cap`]: 4 GiB, above
-/// the largest accepted work (262,144 sampled rows at the PFNN's 342
-/// inputs and 311 outputs, in f64 and f32, about 1.5 GB resident;
+/// the largest accepted work run to the end (the heaviest,
+/// `host-sim accuracy --calibration-tours 436` at the PFNN's widths,
+/// peaks at 3.78 GB resident and finishes under this cap;
 /// `docs/input-files.md`, "Bounds").
 pub const MEMORY_CAP: u64 = 1 << 32;
 
