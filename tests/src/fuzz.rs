@@ -243,7 +243,8 @@ pub fn run_frames<const A: usize, const S: usize, const N: usize>(
 }
 
 /// The `model` target: a blob loaded exactly and as a region, its prefix
-/// length, and every extreme input at every edge phase through what loads.
+/// length, every extreme input at every edge phase through what loads,
+/// and its self-test, if it has one.
 pub fn exercise_model(bytes: &[u8]) -> usize {
     let _ = blob_len_from_prefix(bytes);
     let _ = Style::from_bytes(bytes);
@@ -256,6 +257,12 @@ pub fn exercise_model(bytes: &[u8]) -> usize {
         let _ = model.macs_per_frame();
         if let Ok(mut rt) = Runtime::<ARENA>::new(model) {
             frames += run_frames(&mut rt, &PHASES);
+            // A mutated blob may end with a self-test section: whatever it
+            // holds, the self-test passes or names a vector, never more.
+            match rt.run_self_test() {
+                Ok(_) | Err(phasegate::Error::SelfTestFailed { .. }) => {}
+                Err(e) => panic!("a loaded self-test passes or fails a vector: {e:?}"),
+            }
         }
     }
     frames
