@@ -157,11 +157,7 @@ pub fn write_together(files: &[(&Path, &[u8])]) -> Result<()> {
     let mut mine: Vec<PathBuf> = Vec::with_capacity(files.len());
     let result = (|| {
         for (path, bytes) in files {
-            let tmp = stage(path, bytes)?;
-            mine.push(tmp.path().to_path_buf());
-            if let Ok(mut v) = STAGED.lock() {
-                v.push(tmp.path().to_path_buf());
-            }
+            let tmp = stage(path, bytes, &mut mine)?;
             staged.push((*path, tmp));
         }
         // Held through the renames: an interrupt now waits for all of them.
@@ -269,7 +265,10 @@ fn parent_dir(path: &Path) -> &Path {
 
 /// `bytes` in a flushed temporary file in `path`'s directory, removed
 /// again when dropped unless persisted.
-fn stage(path: &Path, bytes: &[u8]) -> Result<tempfile::NamedTempFile> {
+/// Writes `bytes` to a new temporary file beside `path`, known to the
+/// interrupt handler (and added to `mine`) from the moment it exists, so
+/// that an interrupt during a long write removes it too.
+fn stage(path: &Path, bytes: &[u8], mine: &mut Vec<PathBuf>) -> Result<tempfile::NamedTempFile> {
     let dir = parent_dir(path);
     let mut tmp = tempfile::Builder::new()
         .prefix(".phasegate-")
@@ -291,6 +290,10 @@ fn stage(path: &Path, bytes: &[u8]) -> Result<tempfile::NamedTempFile> {
                 dir.display()
             )
         })?;
+    mine.push(tmp.path().to_path_buf());
+    if let Ok(mut v) = STAGED.lock() {
+        v.push(tmp.path().to_path_buf());
+    }
     tmp.write_all(bytes)
         .and_then(|_| tmp.as_file().sync_all())
         .with_context(|| format!("cannot write {}", path.display()))?;
