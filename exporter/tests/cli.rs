@@ -1508,3 +1508,104 @@ fn every_count_option_at_its_largest_value_runs_under_a_memory_cap() {
         );
     }
 }
+
+/// The options whose memory grows with their value (samples drawn or
+/// measured) at their largest, run to the end under the 4 GiB cap: the
+/// 3-second runs above catch an up-front allocation, these the growth.
+/// (The steps, iterations, ranks and self-test vectors finish or take
+/// time, not memory: see the runs above.)
+#[cfg(unix)]
+#[test]
+fn the_largest_sample_counts_run_to_the_end_under_a_memory_cap() {
+    use exporter::cli_args::bounds;
+    use exporter::cli_contract::{runs_under_a_memory_cap, CappedRun};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let tmp = tempfile::tempdir().unwrap();
+    let w = "tests/golden/default/model.npz";
+    let adapter = tmp.path().join("adapter.npz");
+    exporter::npz::write_npz(&adapter, &[("w", vec![4, 32], vec![0.01; 128])]).unwrap();
+    let adapter = adapter.display().to_string();
+    let samples = bounds::SAMPLES.to_string();
+    let cases: Vec<Vec<&str>> = vec![
+        vec![
+            "npz",
+            "--weights",
+            w,
+            "--gating",
+            "cubic",
+            "--rounding",
+            "compensated",
+            "--compensation-samples",
+            &samples,
+        ],
+        vec![
+            "cp",
+            "--weights",
+            w,
+            "--cp-rank",
+            "8",
+            "--samples",
+            &samples,
+        ],
+        vec![
+            "cp",
+            "--weights",
+            w,
+            "--cp-rank",
+            "8",
+            "--distill",
+            "10",
+            "--distill-samples",
+            &samples,
+        ],
+        vec![
+            "cp",
+            "--weights",
+            w,
+            "--cp-rank",
+            "8",
+            "--rounding",
+            "compensated",
+            "--compensation-samples",
+            &samples,
+        ],
+        vec![
+            "style",
+            "--base",
+            "tests/golden/default/model.blob",
+            "--base-weights",
+            w,
+            "--adapter",
+            &adapter,
+            "--name",
+            "lean",
+            "--samples",
+            &samples,
+        ],
+    ];
+    for args in &cases {
+        let out = tempfile::tempdir().unwrap();
+        let o = out.path().join("m.blob").display().to_string();
+        let mut args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+        args.extend(["-o".to_string(), o]);
+        let Some(r) = runs_under_a_memory_cap(
+            Path::new(env!("CARGO_BIN_EXE_exporter")),
+            &root,
+            &args,
+            out.path(),
+            std::time::Duration::from_secs(600),
+            None,
+        ) else {
+            eprintln!("prlimit (util-linux) is not installed: memory-cap test skipped");
+            return;
+        };
+        assert_eq!(r.outcome, CappedRun::Finished, "{args:?}");
+        assert!(out.path().join("m.blob").exists(), "{args:?}: no blob");
+        eprintln!(
+            "finished in {:.1} s, peak {} MiB: exporter {}",
+            r.seconds,
+            r.peak_rss_mib,
+            args.join(" ")
+        );
+    }
+}

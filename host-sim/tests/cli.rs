@@ -1054,3 +1054,154 @@ fn an_interrupt_during_a_write_leaves_no_temporary() {
     let left: Vec<_> = std::fs::read_dir(&out).unwrap().collect();
     assert!(left.is_empty(), "{left:?}");
 }
+
+/// The options whose memory grows with their value (rows sampled or
+/// recorded, frames rolled out) at their largest, run to the end under
+/// the 4 GiB cap: the 3-second runs above catch an up-front allocation,
+/// these the growth (it was a run to the end that found `style-demo
+/// --frames 216000` growing to 24 GB). `style-demo` fits 10 steps, not
+/// 1,500: the steps cost time, not memory. About two minutes.
+#[cfg(unix)]
+#[test]
+fn the_largest_data_sizes_run_to_the_end_under_a_memory_cap() {
+    use exporter::cli_args::bounds;
+    use exporter::cli_contract::{runs_under_a_memory_cap, CappedRun};
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("pfnn");
+    small_pfnn_dir(&dir);
+    let dir = dir.display().to_string();
+    let (frames, samples, runs) = (
+        bounds::FRAMES.to_string(),
+        bounds::SAMPLES.to_string(),
+        bounds::RUNS.to_string(),
+    );
+    let tours_600 = (bounds::ROWS / 600).to_string();
+    let frames_of_tours = (bounds::ROWS / bounds::RUNS).to_string();
+    let scripts = host_sim::style::demo::training_rows(1, 0);
+    let style_frames = (bounds::STYLE_ROWS / (scripts * 2)).to_string();
+    let style_rounds = (bounds::STYLE_ROWS / (scripts * 480) - 1).to_string();
+    let p = ["--pfnn", dir.as_str()];
+    let cases: Vec<Vec<&str>> = vec![
+        [&["demo"], &p[..], &["--frames", &frames, "--no-target"]].concat(),
+        [
+            &["accuracy"],
+            &p[..],
+            &["--samples", &samples, "--json", "{out}/a.json"],
+        ]
+        .concat(),
+        [
+            &["accuracy"],
+            &p[..],
+            &[
+                "--rounding",
+                "compensated",
+                "--compensation-samples",
+                &samples,
+                "--json",
+                "{out}/a.json",
+            ],
+        ]
+        .concat(),
+        [
+            &["accuracy"],
+            &p[..],
+            &["--calibration-tours", &tours_600, "--json", "{out}/a.json"],
+        ]
+        .concat(),
+        [
+            &["fidelity"],
+            &p[..],
+            &[
+                "--script",
+                "walk",
+                "--frames",
+                &frames,
+                "--json",
+                "{out}/f.json",
+            ],
+        ]
+        .concat(),
+        [
+            &["fidelity"],
+            &p[..],
+            &["--calibration-tours", &tours_600, "--json", "{out}/f.json"],
+        ]
+        .concat(),
+        [
+            &["rollout-dataset"],
+            &p[..],
+            &[
+                "--tours",
+                &runs,
+                "--frames",
+                &frames_of_tours,
+                "-o",
+                "{out}/d.npz",
+            ],
+        ]
+        .concat(),
+        [
+            &["rollout-dataset"],
+            &p[..],
+            &[
+                "--scripts",
+                "walk",
+                "--frames",
+                &frames,
+                "-o",
+                "{out}/d.npz",
+            ],
+        ]
+        .concat(),
+        [
+            &["style-demo"],
+            &p[..],
+            &[
+                "--out",
+                "{out}/s",
+                "--steps",
+                "10",
+                "--frames",
+                &style_frames,
+            ],
+        ]
+        .concat(),
+        [
+            &["style-demo"],
+            &p[..],
+            &[
+                "--out",
+                "{out}/s",
+                "--steps",
+                "10",
+                "--rounds",
+                &style_rounds,
+            ],
+        ]
+        .concat(),
+    ];
+    let scratch = tempfile::tempdir().unwrap();
+    for args in &cases {
+        let out = tempfile::tempdir().unwrap();
+        let o = out.path().display().to_string();
+        let args: Vec<String> = args.iter().map(|a| a.replace("{out}", &o)).collect();
+        let Some(r) = runs_under_a_memory_cap(
+            Path::new(env!("CARGO_BIN_EXE_host-sim")),
+            scratch.path(),
+            &args,
+            out.path(),
+            std::time::Duration::from_secs(900),
+            Some("bars missed"),
+        ) else {
+            eprintln!("prlimit (util-linux) is not installed: memory-cap test skipped");
+            return;
+        };
+        assert_eq!(r.outcome, CappedRun::Finished, "{args:?}");
+        eprintln!(
+            "finished in {:.1} s, peak {} MiB: {}",
+            r.seconds,
+            r.peak_rss_mib,
+            args.join(" ")
+        );
+    }
+}
