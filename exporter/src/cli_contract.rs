@@ -232,3 +232,41 @@ pub fn runs_under_a_memory_cap(
         seconds: start.elapsed().as_secs_f64(),
     })
 }
+
+/// Runs each of `cases` through [`runs_under_a_memory_cap`] from `cwd`,
+/// `{out}` in its arguments standing for a fresh empty output directory,
+/// and prints one line per run (outcome, time, peak memory, command).
+/// `check` then sees the report, the arguments as run and the output
+/// directory. Returns `false`, having run nothing, when `prlimit` is not
+/// installed (and says so).
+#[cfg(unix)]
+pub fn each_under_a_memory_cap(
+    bin: &Path,
+    cwd: &Path,
+    cases: &[Vec<&str>],
+    deadline: std::time::Duration,
+    verdict: Option<&str>,
+    mut check: impl FnMut(&CapReport, &[String], &Path),
+) -> bool {
+    let name = bin.file_name().map(|n| n.to_string_lossy().into_owned());
+    for case in cases {
+        let out = tempfile::tempdir().unwrap();
+        let o = out.path().display().to_string();
+        let args: Vec<String> = case.iter().map(|a| a.replace("{out}", &o)).collect();
+        let Some(r) = runs_under_a_memory_cap(bin, cwd, &args, out.path(), deadline, verdict)
+        else {
+            eprintln!("prlimit (util-linux) is not installed: memory-cap test skipped");
+            return false;
+        };
+        eprintln!(
+            "{:?} after {:.1} s, peak {} MiB: {} {}",
+            r.outcome,
+            r.seconds,
+            r.peak_rss_mib,
+            name.as_deref().unwrap_or(""),
+            args.join(" ")
+        );
+        check(&r, &args, out.path());
+    }
+    true
+}

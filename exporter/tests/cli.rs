@@ -1384,7 +1384,7 @@ fn self_test_is_stored_in_every_kind_of_model_blob() {
 #[test]
 fn every_count_option_at_its_largest_value_runs_under_a_memory_cap() {
     use exporter::cli_args::bounds;
-    use exporter::cli_contract::{runs_under_a_memory_cap, CappedRun};
+    use exporter::cli_contract::{each_under_a_memory_cap, CappedRun};
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let tmp = tempfile::tempdir().unwrap();
     let w = "tests/golden/default/model.npz";
@@ -1451,62 +1451,37 @@ fn every_count_option_at_its_largest_value_runs_under_a_memory_cap() {
         [&omg[..], &["--self-test", &self_test]].concat(),
         [&style[..], &["--samples", &samples]].concat(),
     ];
-    for args in &cases {
-        let out = tempfile::tempdir().unwrap();
-        let o = out.path().join("m.blob").display().to_string();
-        let mut args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
-        args.extend(["-o".to_string(), o]);
-        let r = runs_under_a_memory_cap(
-            Path::new(env!("CARGO_BIN_EXE_exporter")),
-            &root,
-            &args,
-            out.path(),
-            std::time::Duration::from_secs(3),
-            None,
-        );
-        let Some(r) = r else {
-            eprintln!("prlimit (util-linux) is not installed: memory-cap test skipped");
-            return;
-        };
+    let bin = Path::new(env!("CARGO_BIN_EXE_exporter"));
+    let three_s = std::time::Duration::from_secs(3);
+    let cases: Vec<Vec<&str>> = cases
+        .iter()
+        .map(|c| [&c[..], &["-o", "{out}/m.blob"]].concat())
+        .collect();
+    let capped = each_under_a_memory_cap(bin, &root, &cases, three_s, None, |r, args, out| {
         if r.outcome == CappedRun::Finished {
-            assert!(out.path().join("m.blob").exists(), "{args:?}: no blob");
+            assert!(out.join("m.blob").exists(), "{args:?}: no blob");
         }
-        eprintln!(
-            "{:?} after {:.1} s, peak {} MiB: exporter {}",
-            r.outcome,
-            r.seconds,
-            r.peak_rss_mib,
-            args.join(" ")
-        );
+    });
+    if !capped {
+        return;
     }
     // cp-report writes a table (and --json), not a blob.
-    for extra in [
+    let reports: Vec<Vec<&str>> = [
         ["--ranks", rank.as_str()],
         ["--samples", samples.as_str()],
         ["--als-iters", steps.as_str()],
-    ] {
-        let out = tempfile::tempdir().unwrap();
-        let j = out.path().join("r.json").display().to_string();
-        let mut args: Vec<String> = ["cp-report", "--weights", w].map(String::from).to_vec();
-        args.extend(extra.map(String::from));
-        args.extend(["--json".to_string(), j]);
-        let r = runs_under_a_memory_cap(
-            Path::new(env!("CARGO_BIN_EXE_exporter")),
-            &root,
-            &args,
-            out.path(),
-            std::time::Duration::from_secs(3),
-            None,
-        )
-        .expect("prlimit was found above");
-        eprintln!(
-            "{:?} after {:.1} s, peak {} MiB: exporter {}",
-            r.outcome,
-            r.seconds,
-            r.peak_rss_mib,
-            args.join(" ")
-        );
-    }
+    ]
+    .iter()
+    .map(|extra| {
+        [
+            &["cp-report", "--weights", w][..],
+            extra,
+            &["--json", "{out}/r.json"],
+        ]
+        .concat()
+    })
+    .collect();
+    each_under_a_memory_cap(bin, &root, &reports, three_s, None, |_, _, _| {});
 }
 
 /// The options whose memory grows with their value (samples drawn or
@@ -1518,7 +1493,7 @@ fn every_count_option_at_its_largest_value_runs_under_a_memory_cap() {
 #[test]
 fn the_largest_sample_counts_run_to_the_end_under_a_memory_cap() {
     use exporter::cli_args::bounds;
-    use exporter::cli_contract::{runs_under_a_memory_cap, CappedRun};
+    use exporter::cli_contract::{each_under_a_memory_cap, CappedRun};
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let tmp = tempfile::tempdir().unwrap();
     let w = "tests/golden/default/model.npz";
@@ -1583,29 +1558,19 @@ fn the_largest_sample_counts_run_to_the_end_under_a_memory_cap() {
             &samples,
         ],
     ];
-    for args in &cases {
-        let out = tempfile::tempdir().unwrap();
-        let o = out.path().join("m.blob").display().to_string();
-        let mut args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
-        args.extend(["-o".to_string(), o]);
-        let Some(r) = runs_under_a_memory_cap(
-            Path::new(env!("CARGO_BIN_EXE_exporter")),
-            &root,
-            &args,
-            out.path(),
-            std::time::Duration::from_secs(600),
-            None,
-        ) else {
-            eprintln!("prlimit (util-linux) is not installed: memory-cap test skipped");
-            return;
-        };
-        assert_eq!(r.outcome, CappedRun::Finished, "{args:?}");
-        assert!(out.path().join("m.blob").exists(), "{args:?}: no blob");
-        eprintln!(
-            "finished in {:.1} s, peak {} MiB: exporter {}",
-            r.seconds,
-            r.peak_rss_mib,
-            args.join(" ")
-        );
-    }
+    let cases: Vec<Vec<&str>> = cases
+        .iter()
+        .map(|c| [&c[..], &["-o", "{out}/m.blob"]].concat())
+        .collect();
+    each_under_a_memory_cap(
+        Path::new(env!("CARGO_BIN_EXE_exporter")),
+        &root,
+        &cases,
+        std::time::Duration::from_secs(600),
+        None,
+        |r, args, out| {
+            assert_eq!(r.outcome, CappedRun::Finished, "{args:?}");
+            assert!(out.join("m.blob").exists(), "{args:?}: no blob");
+        },
+    );
 }

@@ -589,7 +589,7 @@ fn small_pfnn_dir(dir: &Path) {
 #[test]
 fn every_count_option_at_its_largest_value_runs_under_a_memory_cap() {
     use exporter::cli_args::bounds;
-    use exporter::cli_contract::{runs_under_a_memory_cap, CappedRun};
+    use exporter::cli_contract::{each_under_a_memory_cap, CappedRun};
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = (tmp.path().join("a.npz"), tmp.path().join("b.npz"));
@@ -979,35 +979,23 @@ fn every_count_option_at_its_largest_value_runs_under_a_memory_cap() {
         eprintln!("without the OMG data set or QEMU, not run: {skipped:?}");
     }
     cases.retain(|(run, _)| *run);
+    let cases: Vec<Vec<&str>> = cases.into_iter().map(|(_, args)| args).collect();
     let scratch = tempfile::tempdir().unwrap();
-    for (_, args) in &cases {
-        let out = tempfile::tempdir().unwrap();
-        let o = out.path().display().to_string();
-        let args: Vec<String> = args.iter().map(|a| a.replace("{out}", &o)).collect();
-        let Some(r) = runs_under_a_memory_cap(
-            Path::new(env!("CARGO_BIN_EXE_host-sim")),
-            scratch.path(),
-            &args,
-            out.path(),
-            std::time::Duration::from_secs(3),
-            Some("bars missed"),
-        ) else {
-            eprintln!("prlimit (util-linux) is not installed: memory-cap test skipped");
-            return;
-        };
-        if r.outcome == CappedRun::Finished && args[0] != "fidelity" {
-            let n = std::fs::read_dir(out.path()).unwrap().count();
-            let writes = args.iter().any(|a| a.starts_with(&o));
-            assert!(n > 0 || !writes, "{args:?}: finished without output");
-        }
-        eprintln!(
-            "{:?} after {:.1} s, peak {} MiB: {}",
-            r.outcome,
-            r.seconds,
-            r.peak_rss_mib,
-            args.join(" ")
-        );
-    }
+    each_under_a_memory_cap(
+        Path::new(env!("CARGO_BIN_EXE_host-sim")),
+        scratch.path(),
+        &cases,
+        std::time::Duration::from_secs(3),
+        Some("bars missed"),
+        |r, args, out| {
+            if r.outcome == CappedRun::Finished && args[0] != "fidelity" {
+                let n = std::fs::read_dir(out).unwrap().count();
+                let o = out.display().to_string();
+                let writes = args.iter().any(|a| a.starts_with(&o));
+                assert!(n > 0 || !writes, "{args:?}: finished without output");
+            }
+        },
+    );
 }
 
 /// An interrupt that comes while an output is being written (its
@@ -1065,7 +1053,7 @@ fn an_interrupt_during_a_write_leaves_no_temporary() {
 #[test]
 fn the_largest_data_sizes_run_to_the_end_under_a_memory_cap() {
     use exporter::cli_args::bounds;
-    use exporter::cli_contract::{runs_under_a_memory_cap, CappedRun};
+    use exporter::cli_contract::{each_under_a_memory_cap, CappedRun};
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("pfnn");
     small_pfnn_dir(&dir);
@@ -1181,27 +1169,12 @@ fn the_largest_data_sizes_run_to_the_end_under_a_memory_cap() {
         .concat(),
     ];
     let scratch = tempfile::tempdir().unwrap();
-    for args in &cases {
-        let out = tempfile::tempdir().unwrap();
-        let o = out.path().display().to_string();
-        let args: Vec<String> = args.iter().map(|a| a.replace("{out}", &o)).collect();
-        let Some(r) = runs_under_a_memory_cap(
-            Path::new(env!("CARGO_BIN_EXE_host-sim")),
-            scratch.path(),
-            &args,
-            out.path(),
-            std::time::Duration::from_secs(900),
-            Some("bars missed"),
-        ) else {
-            eprintln!("prlimit (util-linux) is not installed: memory-cap test skipped");
-            return;
-        };
-        assert_eq!(r.outcome, CappedRun::Finished, "{args:?}");
-        eprintln!(
-            "finished in {:.1} s, peak {} MiB: {}",
-            r.seconds,
-            r.peak_rss_mib,
-            args.join(" ")
-        );
-    }
+    each_under_a_memory_cap(
+        Path::new(env!("CARGO_BIN_EXE_host-sim")),
+        scratch.path(),
+        &cases,
+        std::time::Duration::from_secs(900),
+        Some("bars missed"),
+        |r, args, _| assert_eq!(r.outcome, CappedRun::Finished, "{args:?}"),
+    );
 }
